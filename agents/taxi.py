@@ -1,0 +1,97 @@
+"""Dietterich's taxi hierarchy (MAXQ, 2000) and the flat graph for Q-learning.
+
+Task graph::
+
+    Root ─┬─ Get ─┬─ Navigate(t) ── North, South, East, West      t bound to the passenger
+          │       └─ Pickup
+          └─ Put ─┬─ Navigate(t)                                  t bound to the destination
+                  └─ Putdown
+
+``Navigate(t)`` is one subtask per station ``t`` (its parameter), shared by Get and Put; each
+parent's ``child_mask`` binds ``t``. State abstractions (Dietterich's, Section 5):
+
+=============  ==========================================  ======
+node           relevant variables                          states
+=============  ==========================================  ======
+Root           passenger location, destination             20
+Get            taxi location, passenger location           125
+Put            taxi location, destination                  100
+Navigate(t)    taxi location                               25
+N/S/E/W        none (always -1: leaf irrelevance)          1
+Pickup         taxi location, passenger location           125
+Putdown        taxi location, destination                  100
+=============  ==========================================  ======
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from envs.taxi import N_ACTIONS, STATIONS
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+
+IN_TAXI = 4
+STATION_NAMES = "RGYB"
+_STATION_LOC = torch.tensor([r * 5 + c for r, c in STATIONS])
+
+
+class Navigate(Subtask):
+    """Navigate(t): drive to station ``t``; abstraction: taxi location."""
+
+    def __init__(self, target: int) -> None:
+        super().__init__(f"Navigate_{STATION_NAMES[target]}", ["North", "South", "East", "West"],
+                         n_states=25)
+        self.target = target
+        self.register_buffer("target_loc", _STATION_LOC[target].clone(), persistent=False)
+
+    def abstract(self, obs: TensorDict) -> torch.Tensor:
+        return obs["taxi_loc"]
+
+    def terminated(self, obs: TensorDict) -> torch.Tensor:
+        return obs["taxi_loc"] == self.target_loc
+
+
+def _bind(obs_key: str):
+    """``child_mask`` for [Navigate_R..B, X]: allow Navigate(t) only for t = ``obs[obs_key]``."""
+
+    def mask(obs: TensorDict) -> torch.Tensor:
+        nav = obs[obs_key][:, None] == torch.arange(4, device=obs.device)[None, :]
+        return torch.cat([nav, torch.ones_like(nav[:, :1])], dim=1)
+
+    return mask
+
+
+def taxi_hierarchy() -> TaskGraph:
+    """Dietterich's MAXQ graph for taxi with his state abstractions."""
+    navs = [Navigate(t) for t in range(4)]
+    nav_names = [n.name for n in navs]
+    root = Subtask(
+        "Root", ["Get", "Put"], n_states=20,
+        abstract=lambda o: o["passenger"] * 4 + o["destination"],
+    )
+    get = Subtask(
+        "Get", [*nav_names, "Pickup"], n_states=125,
+        abstract=lambda o: o["taxi_loc"] * 5 + o["passenger"],
+        terminated=lambda o: o["passenger"] == IN_TAXI,
+        child_mask=_bind("passenger"),
+    )
+    put = Subtask(
+        "Put", [*nav_names, "Putdown"], n_states=100,
+        abstract=lambda o: o["taxi_loc"] * 4 + o["destination"],
+        terminated=lambda o: o["passenger"] != IN_TAXI,
+        child_mask=_bind("destination"),
+    )
+    prims = [
+        Primitive("South", 0), Primitive("North", 1), Primitive("East", 2), Primitive("West", 3),
+        Primitive("Pickup", 4, 125, lambda o: o["taxi_loc"] * 5 + o["passenger"]),
+        Primitive("Putdown", 5, 100, lambda o: o["taxi_loc"] * 4 + o["destination"]),
+    ]
+    return TaskGraph("Root", [root, get, put, *navs, *prims], n_actions=N_ACTIONS)
+
+
+def flat_graph(n_states: int = 500, n_actions: int = N_ACTIONS) -> TaskGraph:
+    """One root over the primitive actions, abstraction = the full state (flat Q-learning)."""
+    names = [f"a{k}" for k in range(n_actions)]
+    root = Subtask("Root", names, n_states=n_states, abstract=lambda o: o["observation"])
+    return TaskGraph("Root", [root, *(Primitive(n, k) for k, n in enumerate(names))], n_actions)

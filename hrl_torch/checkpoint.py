@@ -1,0 +1,44 @@
+"""Checkpoint files: atomic writes, safe loads (``weights_only=True``) and clear errors."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+FORMAT = "hrl-torch/checkpoint/1"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that is corrupt, of another format, or for a different run setup."""
+
+
+def save_checkpoint(path: str | Path, state: dict) -> Path:
+    """Write ``state`` (tensors, numbers, strings, lists and dicts) atomically to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"format": FORMAT, **state}, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    """Read a checkpoint written by ``save_checkpoint``.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        CheckpointError: the file is truncated, corrupt, or not an hrl-torch checkpoint.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several types for damaged zip/pickle data
+        raise CheckpointError(f"{path} is corrupt or not a torch checkpoint: {err}") from err
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        found = state.get("format") if isinstance(state, dict) else type(state).__name__
+        raise CheckpointError(f"{path} is not an {FORMAT} checkpoint (found {found!r})")
+    return state

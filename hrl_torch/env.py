@@ -1,0 +1,151 @@
+"""Batched environments: the interface the executor drives, and a base class for torch envs.
+
+A ``BatchedEnv`` steps ``B = P * E`` independent episodes at once (``E`` envs for each of ``P``
+learners) and returns a TensorDict with the observation fields plus
+
+- ``reward`` ``[B]`` float: reward of the step (in continuous time: lump reward plus rate x time),
+- ``duration`` ``[B]`` float: time the step took (1 in discrete time),
+- ``terminated`` / ``truncated`` ``[B]`` bool: the episode ended / hit its time limit,
+- ``is_init`` ``[B]`` bool: the row was reset instead of stepped (next-step auto-reset).
+
+Next-step auto-reset keeps every step fixed-shape: a row that ended at step ``t`` is reset at
+step ``t + 1`` (its action is ignored, its reward is 0), so the executor sees the terminal
+observation for its updates and the initial observation one step later.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDict
+
+from hrl_torch.rng import BatchRNG
+
+
+class BatchedEnv:
+    """Base class for torch-batched domains with next-step auto-reset.
+
+    Subclasses implement ``_reset_rows(mask)`` (re-draw the state of rows where ``mask``),
+    ``_step_all(action) -> (reward, duration, terminated)`` (advance every row) and
+    ``_observe() -> dict`` (observation fields of every row), and list their state tensors in
+    ``state_keys`` for checkpoints.
+
+    Args:
+        seeds: one seed per learner.
+        envs_per_learner: ``E``.
+        n_actions: size of the discrete action space (``None`` for continuous actions).
+        max_episode_steps: time limit (truncation), ``None`` for no limit.
+        device: where the state lives.
+    """
+
+    state_keys: tuple[str, ...] = ()
+    #: discrete observation fields and their number of values (shape ``[B]``, long)
+    observation_sizes: dict[str, int] = {}
+    #: continuous observation fields: ``(low, high)`` per field (shape ``[B, *shape]``, float)
+    observation_bounds: dict[str, tuple[list[float], list[float]]] = {}
+    #: ``(low, high)`` of a continuous action ``[B, *shape]`` (``n_actions`` is then ``None``)
+    action_bounds: tuple[list[float], list[float]] | None = None
+
+    def __init__(
+        self,
+        seeds: Sequence[int],
+        envs_per_learner: int,
+        n_actions: int | None,
+        max_episode_steps: int | None = None,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        self.device = torch.device(device)
+        self.seeds = [int(s) for s in seeds]
+        self.envs_per_learner = envs_per_learner
+        self.n_learners = len(self.seeds)
+        self.batch_size = self.n_learners * envs_per_learner
+        self.n_actions = n_actions
+        self.max_episode_steps = max_episode_steps
+        self.rng = BatchRNG(self.seeds, envs_per_learner, stream="env", device=self.device)
+        self.elapsed = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
+        self.done = torch.zeros(self.batch_size, dtype=torch.bool, device=self.device)
+
+    # -- subclass hooks
+    def _reset_rows(self, mask: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def _observe(self) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    # -- public API
+    def reset(self) -> TensorDict:
+        """Start a new episode in every row and return the observations."""
+        every = torch.ones(self.batch_size, dtype=torch.bool, device=self.device)
+        self._reset_rows(every)
+        self.elapsed.zero_()
+        self.done.zero_()
+        return self._output(
+            torch.zeros(self.batch_size, device=self.device),
+            torch.zeros(self.batch_size, device=self.device),
+            self.done.clone(),
+            self.done.clone(),
+            every,
+        )
+
+    def step(self, action: torch.Tensor) -> TensorDict:
+        """Advance every row one primitive step (rows that ended last step are reset instead)."""
+        action = torch.as_tensor(action, device=self.device)
+        if self.n_actions is not None:
+            if action.shape != (self.batch_size,):
+                raise ValueError(f"action must have shape [{self.batch_size}], got {tuple(action.shape)}")
+            bad = (action < 0) | (action >= self.n_actions)
+            if bool((bad & ~self.done).any()):
+                row = int((bad & ~self.done).nonzero()[0])
+                raise ValueError(
+                    f"action {int(action[row])} outside the action space [0, {self.n_actions}) "
+                    f"(env row {row})"
+                )
+            action = torch.where(bad, torch.zeros_like(action), action)
+        was_done = self.done.clone()
+        reward, duration, terminated = self._step_all(action)
+        self.elapsed += 1
+        if self.max_episode_steps is None:
+            truncated = torch.zeros_like(terminated)
+        else:
+            truncated = self.elapsed >= self.max_episode_steps
+        self._reset_rows(was_done)
+        self.elapsed[was_done] = 0
+        zero = torch.zeros((), device=self.device)
+        reward = torch.where(was_done, zero, reward.float())
+        duration = torch.where(was_done, zero, duration.float())
+        terminated = terminated & ~was_done
+        truncated = truncated & ~was_done
+        self.done = terminated | truncated
+        return self._output(reward, duration, terminated, truncated, was_done)
+
+    def _output(self, reward, duration, terminated, truncated, is_init) -> TensorDict:
+        fields = self._observe()
+        fields.update(
+            reward=reward, duration=duration, terminated=terminated, truncated=truncated,
+            is_init=is_init,
+        )
+        return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
+
+    def learner_of_row(self) -> torch.Tensor:
+        """Learner index of every row: ``[B]``."""
+        return torch.arange(self.batch_size, device=self.device) // self.envs_per_learner
+
+    def state_dict(self) -> dict:
+        """Every tensor and counter needed to continue exactly."""
+        state = {k: getattr(self, k).clone() for k in self.state_keys}
+        state.update(elapsed=self.elapsed.clone(), done=self.done.clone(), rng=self.rng.state_dict())
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a ``state_dict``; shapes must match this env."""
+        for k in (*self.state_keys, "elapsed", "done"):
+            value = state[k]
+            current = getattr(self, k)
+            if value.shape != current.shape:
+                raise ValueError(f"env state {k!r}: shape {tuple(value.shape)} != {tuple(current.shape)}")
+            setattr(self, k, value.to(self.device).clone())
+        self.rng.load_state_dict(state["rng"])

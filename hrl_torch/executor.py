@@ -1,0 +1,367 @@
+"""The batched Task-Stack executor (Section 3.2).
+
+For every env row the executor keeps a Task-Stack of ``D`` levels as tensors ``[B, D]``: the
+instance at each level, the child it chose, the abstract state where that child started and the
+reward and time accumulated since. ``observe`` takes one env step: it accumulates rewards, pops
+every level that ended (a terminating subtask aborts everything it called) and emits the
+finished SMDP transitions as a TensorDict. ``act`` pushes children until a primitive is on top
+and returns the primitive actions. The executor never updates values.
+
+Transition fields (batch ``[B]``; per-level fields ``[B, D]``, level ``j`` is the subtask whose
+child ended):
+
+- ``valid``: a transition was emitted at this level; ``learner``: learner of the row ``[B]``;
+- ``inst``, ``node``, ``child`` (slot in the node's children), ``child_inst``, ``parent_inst``;
+- ``state`` / ``next_state``: abstract state of ``node`` when the child started / at ``s'``;
+- ``steps`` (primitive steps ``N``), ``duration`` (time ``tau``), ``reward`` (external, summed),
+  ``discounted_reward`` (sum of ``gamma**t r``), ``internal_reward`` (discounted shaping of
+  ``node``), ``pseudo_reward`` (``node``'s pseudo reward if ``s'`` is terminal for it);
+- ``terminal`` (``s'`` is terminal for ``node``), ``child_done`` (the child ended by its own
+  termination, not by an abort), ``truncated`` (time limit), ``greedy`` (the child and all its
+  ancestors were chosen greedily);
+- with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
+  ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
+  where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
+- primitive fields ``[B]``: ``prim_valid``, ``prim_inst``, ``prim_node``, ``prim_state``,
+  ``prim_reward``, ``prim_duration``, ``prim_greedy``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import torch
+from tensordict import TensorDict
+
+from hrl_torch.graph import GraphError, StepContext, TaskGraph
+
+
+class SubtaskTimeoutError(RuntimeError):
+    """A subtask ran more primitive steps than ``ExecutorConfig.max_subtask_steps``."""
+
+
+class Policy(Protocol):
+    """Chooses children for the instances on top of the stacks."""
+
+    def select(
+        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(child slot [B], greedy flag [B])`` for instances ``inst [B]``."""
+        ...
+
+
+@dataclass
+class ExecutorConfig:
+    """Executor options.
+
+    Attributes:
+        max_subtask_steps: guard: primitive steps one subtask invocation may take.
+        on_timeout: ``"raise"`` a ``SubtaskTimeoutError``, or ``"abort"`` the subtask (and
+            what it called) and carry on; aborted children produce no learning target.
+        record_visited: keep the last ``L`` states visited during each child for all-states
+            updating (0 = off).
+    """
+
+    max_subtask_steps: int = 10_000
+    on_timeout: Literal["raise", "abort"] = "raise"
+    record_visited: int = 0
+
+
+def _at(x: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+    """``x[b, level[b]]`` for ``x [B, D, ...]`` and ``level [B]`` (clamped to 0)."""
+    idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
+    return x.gather(1, idx).squeeze(1)
+
+
+def _put(x: torch.Tensor, level: torch.Tensor, value, mask: torch.Tensor) -> None:
+    """``x[b, level[b]] = value[b]`` where ``mask[b]`` (in place)."""
+    old = _at(x, level)
+    value = torch.as_tensor(value, dtype=x.dtype, device=x.device).expand_as(old)
+    m = mask.view(-1, *([1] * (old.dim() - 1)))
+    new = torch.where(m, value, old)
+    idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
+    x.scatter_(1, idx, new.unsqueeze(1))
+
+
+class HierarchicalExecutor:
+    """Task-Stacks for ``B`` env rows over one task graph.
+
+    Args:
+        graph: the task graph.
+        batch_size: ``B``.
+        envs_per_learner: ``E`` (row ``b`` belongs to learner ``b // E``).
+        gamma: discount used for ``discounted_reward`` / ``internal_reward``.
+        config: guard and all-states options.
+    """
+
+    _state_keys = (
+        "stack", "top", "child", "start_state", "steps", "time", "reward", "disc_reward",
+        "internal", "greedy", "inv_steps", "done", "vis_state", "vis_steps", "vis_time",
+    )
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        batch_size: int,
+        envs_per_learner: int,
+        gamma: float = 1.0,
+        config: ExecutorConfig | None = None,
+    ) -> None:
+        self.graph = graph
+        self.config = config or ExecutorConfig()
+        self.gamma = float(gamma)
+        self.batch_size = batch_size
+        self.envs_per_learner = envs_per_learner
+        self.n_learners = batch_size // envs_per_learner
+        device = graph.node_children.device
+        self.device = device
+        b, d, n_vis = batch_size, graph.max_levels, max(self.config.record_visited, 1)
+        long = dict(dtype=torch.long, device=device)
+        flt = dict(dtype=torch.float32, device=device)
+        self.levels = torch.arange(d, **long)
+        self.learner = torch.arange(b, **long) // envs_per_learner
+        self.stack = torch.full((b, d), -1, **long)
+        self.top = torch.full((b,), -1, **long)
+        self.child = torch.zeros(b, d, **long)
+        self.start_state = torch.zeros(b, d, **long)
+        self.steps = torch.zeros(b, d, **long)
+        self.time = torch.zeros(b, d, **flt)
+        self.reward = torch.zeros(b, d, **flt)
+        self.disc_reward = torch.zeros(b, d, **flt)
+        self.internal = torch.zeros(b, d, **flt)
+        self.greedy = torch.ones(b, d, dtype=torch.bool, device=device)
+        self.inv_steps = torch.zeros(b, d, **long)
+        self.done = torch.zeros(b, dtype=torch.bool, device=device)
+        self.vis_state = torch.zeros(b, d, n_vis, **long)
+        self.vis_steps = torch.zeros(b, d, n_vis, **long)
+        self.vis_time = torch.zeros(b, d, n_vis, **flt)
+        self._visit_slots = torch.arange(n_vis, **long)
+        self._obs = None
+        self._action = torch.zeros(b, **long)
+        self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
+
+    # ------------------------------------------------------------------ acting
+    def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
+        """Push children until a primitive is on top of every live stack; return actions ``[B]``.
+
+        Rows whose stack is empty and whose episode is not over start at the root.
+        """
+        g = self.graph
+        fresh = (self.top < 0) & ~self.done
+        self.stack[:, 0] = torch.where(fresh, 0, self.stack[:, 0])
+        self.top = torch.where(fresh, 0, self.top)
+        self.inv_steps[:, 0] = torch.where(fresh, 0, self.inv_steps[:, 0])
+        self.stats.count_calls(self.learner, torch.full_like(self.top, g.root), fresh)
+        inst = _at(self.stack, self.top)
+        need = (self.top >= 0) & ~g.node_is_primitive[g.inst_node[inst.clamp_min(0)]]
+        need &= ~self.done
+        while bool(need.any()):
+            node = g.inst_node[inst.clamp_min(0)]
+            available = ctx.available[torch.arange(self.batch_size, device=self.device), node]
+            stuck = need & ~available.any(-1)
+            if bool(stuck.any()):
+                row = int(stuck.nonzero()[0])
+                raise GraphError(
+                    f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
+                    f"(every child is terminated, not initiable or masked)"
+                )
+            choice, greedy = policy.select(inst, ctx, available, step)
+            level = self.top
+            parent_greedy = _at(self.greedy, (level - 1).clamp_min(0)) | (level == 0)
+            _put(self.child, level, choice, need)
+            _put(self.start_state, level, ctx.abstract.gather(1, node[:, None]).squeeze(1), need)
+            _put(self.greedy, level, greedy & parent_greedy, need)
+            for acc in (self.steps, self.time, self.reward, self.disc_reward, self.internal):
+                _put(acc, level, 0, need)
+            if self.config.record_visited:
+                _put(self.vis_state[:, :, 0], level, _at(self.start_state, level), need)
+                _put(self.vis_steps[:, :, 0], level, 0, need)
+                _put(self.vis_time[:, :, 0], level, 0.0, need)
+            child_inst = g.inst_children[inst.clamp_min(0), choice]
+            child_node = g.inst_node[child_inst.clamp_min(0)]
+            self.top = self.top + need.long()
+            _put(self.stack, self.top, child_inst, need)
+            _put(self.inv_steps, self.top, 0, need)
+            child_is_prim = g.node_is_primitive[child_node]
+            prim_state = ctx.abstract.gather(1, child_node[:, None]).squeeze(1)
+            _put(self.start_state, self.top, prim_state, need & child_is_prim)
+            self.stats.count_calls(self.learner, child_node, need)
+            inst = torch.where(need, child_inst, inst)
+            need = need & ~child_is_prim
+        live = self.top >= 0
+        action = g.node_action[g.inst_node[inst.clamp_min(0)]]
+        self._action = torch.where(live, action, torch.zeros_like(action))
+        self._obs = ctx.obs
+        return self._action
+
+    # ------------------------------------------------------------------ observing
+    def observe(self, step_td: TensorDict, ctx: StepContext) -> TensorDict:
+        """Account one env step, pop what ended and return the finished SMDP transitions."""
+        g, cfg = self.graph, self.config
+        reward = step_td["reward"]
+        if bool(torch.isnan(reward).any()):
+            row = int(torch.isnan(reward).nonzero()[0])
+            raise ValueError(f"the env returned a NaN reward (env row {row})")
+        tau = step_td["duration"]
+        real = ~step_td["is_init"]
+        env_term = step_td["terminated"] & real
+        env_trunc = step_td["truncated"] & real & ~env_term
+        levels = self.levels[None, :]
+        active = (levels <= self.top[:, None]) & real[:, None]
+        node = g.inst_node[self.stack.clamp_min(0)]
+        is_prim = g.node_is_primitive[node] & active
+
+        # accumulate reward and time of the current child at every level
+        disc = self.gamma ** self.time
+        self.reward += active * reward[:, None]
+        self.disc_reward += active * disc * reward[:, None]
+        if g.shaping_nodes and self._obs is not None:
+            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs)
+            self.internal += active * disc * shaping.gather(1, node)
+        self.steps += active.long()
+        self.time += active * tau[:, None]
+        self.inv_steps += active.long()
+
+        # which levels end: own termination (primitives always), episode end, guard
+        own = ctx.terminated.gather(1, node) & active
+        ended_own = own | is_prim | (active & env_term[:, None])
+        timeout = active & ~is_prim & (self.inv_steps >= cfg.max_subtask_steps)
+        if bool(timeout.any()):
+            row, lvl = (int(v) for v in timeout.nonzero()[0])
+            name = g.names[int(node[row, lvl])]
+            if cfg.on_timeout == "raise":
+                raise SubtaskTimeoutError(
+                    f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
+                    f"terminating (env row {row}, instance {g.instance_path(int(self.stack[row, lvl]))})"
+                )
+        cut = ended_own | timeout | (active & env_trunc[:, None])
+        popped = (cut.long().cumsum(1) > 0) & active
+        child_popped = torch.zeros_like(popped)
+        child_popped[:, :-1] = popped[:, 1:]
+        emit = active & ~is_prim & child_popped
+        child_done = torch.zeros_like(popped)
+        child_done[:, :-1] = ended_own[:, 1:]
+        terminal = (own | env_term[:, None]) & active & ~is_prim
+
+        batch = self._transitions(step_td, ctx, node, emit, child_done, terminal, env_trunc, real)
+        if cfg.record_visited:
+            self._record_visits(active & ~is_prim & ~child_popped, ctx, node)
+
+        # statistics, then pop
+        self.stats.count_ends(self.learner, node, popped, ended_own & popped, self.inv_steps)
+        self.stack = torch.where(popped, torch.full_like(self.stack, -1), self.stack)
+        self.top = torch.where(real, (active & ~popped).sum(1) - 1, torch.full_like(self.top, -1))
+        self.done = env_term | env_trunc
+        return batch
+
+    def _record_visits(self, continuing: torch.Tensor, ctx: StepContext, node: torch.Tensor) -> None:
+        """Append ``s'`` (abstracted for each level's node) to the visit buffer of the levels
+        whose child goes on; visit ``k`` of a child lives in slot ``k % L``."""
+        size = self.config.record_visited
+        slot = (self.steps % size).unsqueeze(-1)  # steps already counts this step: visit index
+        state = ctx.abstract.gather(1, node)
+        for buf, value in (
+            (self.vis_state, state), (self.vis_steps, self.steps), (self.vis_time, self.time)
+        ):
+            old = buf.gather(2, slot).squeeze(-1)
+            buf.scatter_(2, slot, torch.where(continuing, value.to(buf.dtype), old).unsqueeze(-1))
+
+    def _transitions(self, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
+        g = self.graph
+        b, d = self.stack.shape
+        shift = torch.full_like(self.stack, -1)
+        shift[:, :-1] = self.stack[:, 1:]
+        parent = torch.full_like(self.stack, -1)
+        parent[:, 1:] = self.stack[:, :-1]
+        pseudo = torch.zeros(b, d, device=self.device)
+        if g.internal_nodes:
+            pseudo = g.internal_rewards_at_termination(ctx.obs).gather(1, node) * terminal
+        top = self.top
+        prim_inst = _at(self.stack, top)
+        prim_node = g.inst_node[prim_inst.clamp_min(0)]
+        fields = {
+            "valid": emit,
+            "learner": self.learner,
+            "inst": self.stack.clone(),
+            "node": node,
+            "child": self.child.clone(),
+            "child_inst": shift,
+            "parent_inst": parent,
+            "state": self.start_state.clone(),
+            "next_state": ctx.abstract.gather(1, node),
+            "steps": self.steps.clone(),
+            "duration": self.time.clone(),
+            "reward": self.reward.clone(),
+            "discounted_reward": self.disc_reward.clone(),
+            "internal_reward": self.internal.clone(),
+            "pseudo_reward": pseudo,
+            "terminal": terminal,
+            "child_done": child_done & emit,
+            "truncated": env_trunc[:, None] & emit & ~terminal,
+            "greedy": self.greedy.clone(),
+            "prim_valid": real & (top >= 0),
+            "prim_inst": prim_inst,
+            "prim_node": prim_node,
+            "prim_state": _at(self.start_state, top),
+            "prim_reward": step_td["reward"],
+            "prim_duration": step_td["duration"],
+            "prim_greedy": _at(self.greedy, (top - 1).clamp_min(0)),
+        }
+        if self.config.record_visited:
+            fields.update(
+                visited_state=self.vis_state.clone(),
+                visited_steps=self.vis_steps.clone(),
+                visited_time=self.vis_time.clone(),
+                visited_valid=self._visit_slots[None, None, :] < self.steps.clamp_max(
+                    self.config.record_visited
+                )[:, :, None],
+            )
+        return TensorDict(fields, batch_size=[b], device=self.device)
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        """Stacks, accumulators and the last action and observation, for exact resume."""
+        state = {k: getattr(self, k).clone() for k in self._state_keys}
+        state["action"] = self._action.clone()
+        state["obs"] = {} if self._obs is None else self._obs.to_dict()
+        return state
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore a ``state_dict`` taken from an executor of the same shape."""
+        for k in self._state_keys:
+            if state[k].shape != getattr(self, k).shape:
+                raise ValueError(f"executor state {k!r} has shape {tuple(state[k].shape)}")
+        for k in self._state_keys:
+            setattr(self, k, state[k].to(self.device).clone())
+        self._action = state["action"].to(self.device).clone()
+        obs = state["obs"]
+        self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+class ExecutorStats:
+    """Per learner and node: calls, finished invocations, successes and their lengths."""
+
+    def __init__(self, n_learners: int, n_nodes: int, device: torch.device) -> None:
+        shape = (n_learners, n_nodes)
+        self.calls = torch.zeros(shape, device=device)
+        self.ends = torch.zeros(shape, device=device)
+        self.successes = torch.zeros(shape, device=device)
+        self.durations = torch.zeros(shape, device=device)
+        self.n_nodes = n_nodes
+
+    def count_calls(self, learner: torch.Tensor, node: torch.Tensor, mask: torch.Tensor) -> None:
+        """Count one invocation of ``node[b]`` where ``mask[b]``."""
+        self.calls.view(-1).index_add_(0, learner * self.n_nodes + node, mask.float())
+
+    def count_ends(self, learner, node, popped, success, inv_steps) -> None:
+        """Count finished invocations (``[B, D]`` masks) and their lengths in steps."""
+        idx = (learner[:, None] * self.n_nodes + node).reshape(-1)
+        self.ends.view(-1).index_add_(0, idx, popped.float().reshape(-1))
+        self.successes.view(-1).index_add_(0, idx, success.float().reshape(-1))
+        self.durations.view(-1).index_add_(0, idx, (inv_steps * popped).float().reshape(-1))
+
+    def reset(self) -> None:
+        """Zero every counter (after logging)."""
+        for t in (self.calls, self.ends, self.successes, self.durations):
+            t.zero_()

@@ -1,0 +1,130 @@
+"""Exploration over masked action values: greedy, epsilon-greedy and Boltzmann, with schedules.
+
+Each strategy maps action values ``q [B, A]``, an availability mask ``[B, A]`` and a
+``BatchRNG`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that choice is greedy
+(the flag the average-reward learners use to update their gains only after non-random actions).
+Schedules are functions of the learner's env-step count, so every learner of a population sees
+the same exploration rate at the same point of its own training.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from hrl_torch.rng import BatchRNG
+
+_TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
+
+
+@dataclass(frozen=True)
+class Constant:
+    """A fixed value."""
+
+    value: float
+
+    def __call__(self, step: int) -> float:
+        """Value at ``step``."""
+        return self.value
+
+
+@dataclass(frozen=True)
+class Linear:
+    """Linear from ``start`` to ``end`` over ``steps`` env steps, then ``end``."""
+
+    start: float
+    end: float
+    steps: int
+
+    def __call__(self, step: int) -> float:
+        """Value at ``step``."""
+        frac = min(max(step / max(self.steps, 1), 0.0), 1.0)
+        return self.start + frac * (self.end - self.start)
+
+
+@dataclass(frozen=True)
+class Exponential:
+    """``start * decay ** (step // every)``, never below ``minimum``."""
+
+    start: float
+    decay: float
+    every: int = 1
+    minimum: float = 0.0
+
+    def __call__(self, step: int) -> float:
+        """Value at ``step``."""
+        return max(self.minimum, self.start * self.decay ** (step // max(self.every, 1)))
+
+
+Schedule = Constant | Linear | Exponential
+
+
+def as_schedule(value: float | Schedule) -> Schedule:
+    """Wrap a plain number as a constant schedule."""
+    return Constant(float(value)) if isinstance(value, int | float) else value
+
+
+def masked_argmax(q: torch.Tensor, available: torch.Tensor) -> torch.Tensor:
+    """Index of the largest available value per row (``q [..., A]`` -> ``[...]``)."""
+    return torch.where(available, q, torch.full_like(q, -math.inf)).argmax(-1)
+
+
+def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Uniform pick among available entries using uniforms ``u [B]`` in ``[0, 1)``."""
+    count = available.sum(-1).clamp_min(1)
+    k = torch.minimum((u * count).long(), count - 1)  # the k-th available entry
+    return (available.cumsum(-1) <= k.unsqueeze(-1)).sum(-1).clamp_max(available.shape[-1] - 1)
+
+
+class Greedy:
+    """Always the best available child (random among exact ties)."""
+
+    def select(
+        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(choice [B], greedy [B])``."""
+        noise = rng.uniform(q.shape[-1]) * _TIE_NOISE
+        choice = masked_argmax(q + noise, available)
+        return choice, torch.ones_like(choice, dtype=torch.bool)
+
+
+class EpsilonGreedy:
+    """With probability ``epsilon(step)`` a uniformly random available child, else greedy."""
+
+    def __init__(self, epsilon: float | Schedule) -> None:
+        self.epsilon = as_schedule(epsilon)
+
+    def select(
+        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(choice [B], greedy [B])``; a random pick that equals the greedy one counts."""
+        greedy_choice, _ = Greedy().select(q, available, rng, step)
+        explore = rng.uniform() < self.epsilon(step)
+        random_choice = uniform_choice(available, rng.uniform())
+        choice = torch.where(explore, random_choice, greedy_choice)
+        return choice, choice == greedy_choice
+
+
+class Boltzmann:
+    """Softmax over available children with temperature ``temperature(step)``."""
+
+    def __init__(self, temperature: float | Schedule) -> None:
+        self.temperature = as_schedule(temperature)
+
+    def select(
+        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(choice [B], greedy [B])`` sampled by inverse CDF."""
+        temp = max(self.temperature(step), 1e-8)
+        logits = torch.where(available, q / temp, torch.full_like(q, -math.inf))
+        probs = torch.softmax(logits, dim=-1)
+        u = rng.uniform().unsqueeze(-1)
+        choice = (probs.cumsum(-1) <= u).sum(-1).clamp_max(q.shape[-1] - 1)
+        choice = torch.where(available.gather(-1, choice[:, None]).squeeze(-1), choice,
+                             masked_argmax(q, available))
+        return choice, choice == masked_argmax(q, available)
+
+
+Exploration = Greedy | EpsilonGreedy | Boltzmann

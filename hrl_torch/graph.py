@@ -1,0 +1,423 @@
+"""Task graphs: subtasks, primitive actions, validation and the compiled instance tree.
+
+A non-primitive subtask is ``M_i = (S_i, I_i, T_i, A_i, R_i)`` (Definition 3.1): an abstract state
+space (``abstract`` maps an observation to ``[0, n_states)``), an initiation set (``initiable``),
+terminal states (``terminated``), children (``children`` plus an optional per-state ``child_mask``
+for ``A_i(s)``) and internal rewards (``pseudo_reward`` on termination, ``shaping_reward`` per
+step) that are used inside the subtask only.
+
+Subtasks form a DAG; one subtask may be shared by several parents. ``TaskGraph`` validates the
+DAG and unrolls it into a tree of *instances*, one per path from the root: the executor runs
+instances, hierarchically optimal learners index their tables by instance (the Task-Stack is
+part of their state, Section 3.4) and recursively optimal learners by subtask.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+ObsFn = Callable[[TensorDict], torch.Tensor]
+
+
+class GraphError(ValueError):
+    """An invalid task graph, or a subtask that misbehaves at run time."""
+
+
+def _batch(obs: TensorDict) -> tuple[int, torch.device]:
+    return obs.batch_size[0], obs.device if obs.device is not None else torch.device("cpu")
+
+
+class Subtask(nn.Module):
+    """A non-primitive subtask. Subclass it, or pass the predicates as callables.
+
+    Args:
+        name: unique name in the graph.
+        children: names of child subtasks or primitives (the action set ``A_i``).
+        n_states: size of the abstract state space ``S_i``.
+        abstract: ``obs -> [B] long`` in ``[0, n_states)``; required when ``n_states > 1``.
+        terminated: ``obs -> [B] bool``, the terminal set ``T_i`` (default: never, as a
+            continuing root).
+        initiable: ``obs -> [B] bool``, the initiation set ``I_i`` (default: everywhere).
+        child_mask: ``obs -> [B, n_children] bool``, the state-dependent action set ``A_i(s)``.
+        pseudo_reward: ``obs -> [B]``, internal reward on entering a terminal state (MAXQ).
+        shaping_reward: ``(obs, action, next_obs) -> [B]``, internal reward per primitive step.
+    """
+
+    is_primitive = False
+
+    def __init__(
+        self,
+        name: str,
+        children: Sequence[str],
+        n_states: int = 1,
+        *,
+        abstract: ObsFn | None = None,
+        terminated: ObsFn | None = None,
+        initiable: ObsFn | None = None,
+        child_mask: ObsFn | None = None,
+        pseudo_reward: ObsFn | None = None,
+        shaping_reward: Callable[[TensorDict, torch.Tensor, TensorDict], torch.Tensor] | None = None,
+    ) -> None:
+        super().__init__()
+        self.name = name
+        self.children_names = tuple(children)
+        self.n_states = int(n_states)
+        self._fns = {
+            "abstract": abstract,
+            "terminated": terminated,
+            "initiable": initiable,
+            "child_mask": child_mask,
+            "pseudo_reward": pseudo_reward,
+            "shaping_reward": shaping_reward,
+        }
+
+    def abstract(self, obs: TensorDict) -> torch.Tensor:
+        """Abstract state index in ``[0, n_states)``, shape ``[B]``."""
+        if self._fns["abstract"] is not None:
+            return self._fns["abstract"](obs)
+        if self.n_states != 1:
+            raise GraphError(f"subtask {self.name!r} has n_states={self.n_states} but no abstract()")
+        b, device = _batch(obs)
+        return torch.zeros(b, dtype=torch.long, device=device)
+
+    def terminated(self, obs: TensorDict) -> torch.Tensor:
+        """Whether ``obs`` is in the terminal set ``T_i``, shape ``[B]``."""
+        if self._fns["terminated"] is not None:
+            return self._fns["terminated"](obs)
+        b, device = _batch(obs)
+        return torch.zeros(b, dtype=torch.bool, device=device)
+
+    def initiable(self, obs: TensorDict) -> torch.Tensor:
+        """Whether ``obs`` is in the initiation set ``I_i``, shape ``[B]``."""
+        if self._fns["initiable"] is not None:
+            return self._fns["initiable"](obs)
+        b, device = _batch(obs)
+        return torch.ones(b, dtype=torch.bool, device=device)
+
+    def child_mask(self, obs: TensorDict) -> torch.Tensor | None:
+        """``A_i(s)`` as ``[B, n_children]`` bool, or ``None`` when every child is allowed."""
+        fn = self._fns["child_mask"]
+        return None if fn is None else fn(obs)
+
+    def pseudo_reward(self, obs: TensorDict) -> torch.Tensor | None:
+        """Internal reward for terminating in ``obs`` (``None`` means zero)."""
+        fn = self._fns["pseudo_reward"]
+        return None if fn is None else fn(obs)
+
+    def shaping_reward(
+        self, obs: TensorDict, action: torch.Tensor, next_obs: TensorDict
+    ) -> torch.Tensor | None:
+        """Internal reward for one primitive step inside this subtask (``None`` means zero)."""
+        fn = self._fns["shaping_reward"]
+        return None if fn is None else fn(obs, action, next_obs)
+
+    def has_internal_rewards(self) -> bool:
+        """Whether this subtask defines pseudo or shaping rewards (so internal != external)."""
+        cls = type(self)
+        overridden = (
+            cls.pseudo_reward is not Subtask.pseudo_reward
+            or cls.shaping_reward is not Subtask.shaping_reward
+        )
+        given = self._fns["pseudo_reward"] is not None or self._fns["shaping_reward"] is not None
+        return overridden or given
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}, children={list(self.children_names)}, n_states={self.n_states}"
+
+
+class Primitive(nn.Module):
+    """A primitive action: always executable, terminates after one step.
+
+    Args:
+        name: unique name in the graph.
+        action: the env action index it executes.
+        n_states: size of the abstract state space of its value table ``V(a, s)``; the default
+            1 says its expected reward does not depend on the state (Dietterich's leaf
+            irrelevance).
+        abstract: ``obs -> [B] long``; required when ``n_states > 1``.
+    """
+
+    is_primitive = True
+    children_names: tuple[str, ...] = ()
+
+    def __init__(self, name: str, action: int, n_states: int = 1, abstract: ObsFn | None = None):
+        super().__init__()
+        self.name = name
+        self.action = int(action)
+        self.n_states = int(n_states)
+        self._abstract = abstract
+
+    def abstract(self, obs: TensorDict) -> torch.Tensor:
+        """Abstract state index of ``V(a, s)``, shape ``[B]``."""
+        if self._abstract is not None:
+            return self._abstract(obs)
+        if self.n_states != 1:
+            raise GraphError(f"primitive {self.name!r} has n_states={self.n_states} but no abstract")
+        b, device = _batch(obs)
+        return torch.zeros(b, dtype=torch.long, device=device)
+
+    def has_internal_rewards(self) -> bool:
+        """Primitives carry no internal rewards."""
+        return False
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}, action={self.action}, n_states={self.n_states}"
+
+
+Node = Subtask | Primitive
+
+
+@dataclass
+class StepContext:
+    """What the graph knows about one batch of observations, computed once per step.
+
+    Shapes: ``learner`` ``[B]`` (learner of each row), ``abstract`` ``[B, n_nodes]`` long, ``terminated`` ``[B, n_nodes]`` bool,
+    ``available`` ``[B, n_nodes, max_children]`` bool. Learners add their own per-node values
+    to ``values`` (e.g. ``V`` ``[B, n_tables]``).
+    """
+
+    obs: TensorDict
+    learner: torch.Tensor
+    abstract: torch.Tensor
+    terminated: torch.Tensor
+    available: torch.Tensor
+    values: dict[str, torch.Tensor] = field(default_factory=dict)
+
+
+class TaskGraph(nn.Module):
+    """A validated task DAG and its unrolled instance tree.
+
+    Args:
+        root: name of the root subtask.
+        nodes: every subtask and primitive of the hierarchy.
+        n_actions: size of the env's discrete action space; primitives outside it are an error.
+        max_instances: guard against DAGs whose unrolled tree would be huge.
+    """
+
+    def __init__(
+        self,
+        root: str,
+        nodes: Sequence[Node],
+        n_actions: int | None = None,
+        max_instances: int = 100_000,
+    ) -> None:
+        super().__init__()
+        self._validate(root, nodes, n_actions)
+        self.nodes = nn.ModuleList(nodes)
+        self.names = [n.name for n in nodes]
+        self.index = {name: k for k, name in enumerate(self.names)}
+        self.root_name = root
+        self.n_actions = n_actions
+        self._compile(max_instances)
+
+    # ------------------------------------------------------------------ validation
+    @staticmethod
+    def _validate(root: str, nodes: Sequence[Node], n_actions: int | None) -> None:
+        names = [n.name for n in nodes]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise GraphError(f"duplicate node names: {dup}")
+        by_name = {n.name: n for n in nodes}
+        if root not in by_name:
+            raise GraphError(f"root {root!r} is not a node of the graph")
+        if by_name[root].is_primitive:
+            raise GraphError(f"root {root!r} must be a subtask, not a primitive")
+        for node in nodes:
+            if node.n_states < 1:
+                raise GraphError(f"{node.name!r}: n_states must be >= 1, got {node.n_states}")
+            if node.is_primitive:
+                if n_actions is not None and not 0 <= node.action < n_actions:
+                    raise GraphError(
+                        f"primitive {node.name!r} has action {node.action}, outside the env's "
+                        f"action space [0, {n_actions})"
+                    )
+                continue
+            if not node.children_names:
+                raise GraphError(f"subtask {node.name!r} has no children")
+            unknown = [c for c in node.children_names if c not in by_name]
+            if unknown:
+                raise GraphError(f"subtask {node.name!r} has unknown children {unknown}")
+            if len(set(node.children_names)) != len(node.children_names):
+                raise GraphError(f"subtask {node.name!r} lists a child twice")
+        # cycle check: depth-first search with colours
+        colour: dict[str, int] = {}
+
+        def visit(name: str, path: list[str]) -> None:
+            colour[name] = 1
+            for child in by_name[name].children_names:
+                if colour.get(child) == 1:
+                    cycle = path[path.index(child) :] + [child] if child in path else [name, child]
+                    raise GraphError(f"task graph has a cycle: {' -> '.join(cycle)}")
+                if colour.get(child) is None:
+                    visit(child, path + [child])
+            colour[name] = 2
+
+        for name in names:
+            if colour.get(name) is None:
+                visit(name, [name])
+
+    # ------------------------------------------------------------------ compilation
+    def _compile(self, max_instances: int) -> None:
+        n = len(self.nodes)
+        width = max(len(node.children_names) for node in self.nodes)
+        children = torch.full((n, width), -1, dtype=torch.long)
+        for k, node in enumerate(self.nodes):
+            for a, c in enumerate(node.children_names):
+                children[k, a] = self.index[c]
+        height = [0] * n
+
+        def node_height(k: int) -> int:
+            node = self.nodes[k]
+            if node.is_primitive:
+                return 0
+            if height[k] == 0:
+                height[k] = 1 + max(node_height(self.index[c]) for c in node.children_names)
+            return height[k]
+
+        for k in range(n):
+            node_height(k)
+        # unroll the DAG into instances (paths from the root), breadth first
+        inst_node, inst_parent, inst_slot, inst_depth = [self.index[self.root_name]], [-1], [-1], [0]
+        head = 0
+        while head < len(inst_node):
+            node = self.nodes[inst_node[head]]
+            for a, c in enumerate(node.children_names):
+                inst_node.append(self.index[c])
+                inst_parent.append(head)
+                inst_slot.append(a)
+                inst_depth.append(inst_depth[head] + 1)
+                if len(inst_node) > max_instances:
+                    raise GraphError(f"unrolled task tree exceeds {max_instances} instances")
+            head += 1
+        m = len(inst_node)
+        inst_children = torch.full((m, width), -1, dtype=torch.long)
+        for k in range(1, m):
+            inst_children[inst_parent[k], inst_slot[k]] = k
+        self.n_nodes = n
+        self.n_instances = m
+        self.max_children = width
+        self.max_levels = max(inst_depth) + 1  # stack slots, primitive included
+        as_long = dict(dtype=torch.long)
+        self.register_buffer("node_children", children, persistent=False)
+        self.register_buffer(
+            "node_n_children",
+            torch.tensor([len(x.children_names) for x in self.nodes], **as_long),
+            persistent=False,
+        )
+        self.register_buffer(
+            "node_is_primitive",
+            torch.tensor([x.is_primitive for x in self.nodes], dtype=torch.bool),
+            persistent=False,
+        )
+        self.register_buffer(
+            "node_n_states", torch.tensor([x.n_states for x in self.nodes], **as_long), persistent=False
+        )
+        self.register_buffer(
+            "node_action",
+            torch.tensor([x.action if x.is_primitive else -1 for x in self.nodes], **as_long),
+            persistent=False,
+        )
+        self.register_buffer("node_height", torch.tensor(height, **as_long), persistent=False)
+        self.register_buffer("inst_node", torch.tensor(inst_node, **as_long), persistent=False)
+        self.register_buffer("inst_parent", torch.tensor(inst_parent, **as_long), persistent=False)
+        self.register_buffer("inst_depth", torch.tensor(inst_depth, **as_long), persistent=False)
+        self.register_buffer("inst_children", inst_children, persistent=False)
+        self.register_buffer(
+            "child_valid",
+            torch.arange(width)[None, :] < self.node_n_children[:, None],
+            persistent=False,
+        )
+        self.internal_nodes = [k for k, x in enumerate(self.nodes) if x.has_internal_rewards()]
+        self.shaping_nodes = [
+            k
+            for k, x in enumerate(self.nodes)
+            if not x.is_primitive
+            and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
+        ]
+        self.check_ranges = True
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def root(self) -> int:
+        """Node index of the root subtask (instance 0 is its only instance)."""
+        return self.index[self.root_name]
+
+    def node(self, name: str) -> Node:
+        """The node with this name."""
+        return self.nodes[self.index[name]]
+
+    def instance_path(self, inst: int) -> str:
+        """``Root/Get/Navigate_R`` style name of an instance."""
+        parts = []
+        while inst >= 0:
+            parts.append(self.names[int(self.inst_node[inst])])
+            inst = int(self.inst_parent[inst])
+        return "/".join(reversed(parts))
+
+    def subtasks(self) -> list[int]:
+        """Indices of the non-primitive nodes."""
+        return [k for k, x in enumerate(self.nodes) if not x.is_primitive]
+
+    # ------------------------------------------------------------------ per-step evaluation
+    def context(self, obs: TensorDict, learner: torch.Tensor | None = None) -> StepContext:
+        """Abstract states, termination and available children of every node for ``obs``.
+
+        ``learner [B]`` says which learner each row belongs to (default: all learner 0).
+        """
+        b, device = _batch(obs)
+        if learner is None:
+            learner = torch.zeros(b, dtype=torch.long, device=device)
+        abstract = torch.stack([node.abstract(obs).long() for node in self.nodes], dim=1)
+        if self.check_ranges:
+            bad = (abstract < 0) | (abstract >= self.node_n_states)
+            if bool(bad.any()):
+                row, col = (int(v) for v in bad.nonzero()[0])
+                raise GraphError(
+                    f"{self.names[col]!r}.abstract returned {int(abstract[row, col])}, outside "
+                    f"[0, {self.nodes[col].n_states}) (env row {row})"
+                )
+        false = torch.zeros(b, dtype=torch.bool, device=device)
+        terminated = torch.stack(
+            [false if x.is_primitive else x.terminated(obs).bool() for x in self.nodes], dim=1
+        )
+        initiable = torch.stack(
+            [~false if x.is_primitive else x.initiable(obs).bool() for x in self.nodes], dim=1
+        )
+        child_ok = initiable & ~terminated  # a child that would end at once is not available
+        available = child_ok[:, self.node_children.clamp_min(0)] & self.child_valid
+        for k, x in enumerate(self.nodes):
+            if x.is_primitive:
+                continue
+            mask = x.child_mask(obs)
+            if mask is not None:
+                available[:, k, : mask.shape[1]] &= mask.bool()
+        return StepContext(obs, learner, abstract, terminated, available)
+
+    def internal_rewards_at_termination(self, obs: TensorDict) -> torch.Tensor:
+        """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``."""
+        b, device = _batch(obs)
+        out = torch.zeros(b, self.n_nodes, device=device)
+        for k in self.internal_nodes:
+            value = self.nodes[k].pseudo_reward(obs)
+            if value is not None:
+                out[:, k] = value
+        return out
+
+    def shaping_rewards(
+        self, obs: TensorDict, action: torch.Tensor, next_obs: TensorDict
+    ) -> torch.Tensor | None:
+        """Per-step internal rewards ``[B, n_nodes]`` (``None`` when no node defines them)."""
+        if not self.shaping_nodes:
+            return None
+        b, device = _batch(obs)
+        out = torch.zeros(b, self.n_nodes, device=device)
+        for k in self.shaping_nodes:
+            value = self.nodes[k].shaping_reward(obs, action, next_obs)
+            if value is not None:
+                out[:, k] = value
+        return out

@@ -1,0 +1,141 @@
+"""MAXQ-Q (Dietterich 2000): the two-part decomposition with internal and external completions.
+
+Values (Equations 3.5 and 3.6), for a non-primitive ``i`` and child ``a``::
+
+    Q(i, s, a) = V(a, s) + C(i, s, a)           external, propagated to the parents
+    Q~(i, s, a) = V(a, s) + C~(i, s, a)         internal, chooses the child of ``i``
+    V(i, s) = Q(i, s, a*),  a* = argmax_a Q~(i, s, a)      (V(a, s) learned for primitives)
+
+Updates after child ``a`` of ``i`` ran from ``s`` to ``s'`` in ``N`` steps (Dietterich's
+Table 4)::
+
+    C~(i, s, a) <- (1-alpha) C~ + alpha * gamma^N [R~_i(s') + C~(i, s', a*) + V(a*, s')]
+    C(i, s, a)  <- (1-alpha) C  + alpha * gamma^N [C(i, s', a*) + V(a*, s')]
+    V(a, s)     <- (1-alpha) V  + alpha * r                      (primitive a)
+
+with ``a* = argmax_a' [C~(i, s', a') + V(a', s')]``; a terminal ``s'`` has no continuation, only
+the pseudo reward ``R~_i(s')`` in the internal target. Shaping rewards of ``i`` collected while
+``a`` ran enter the internal target only (Section 3.1).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from hrl_torch.exploration import Schedule, masked_argmax
+from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.learners.base import TabularLearner
+
+
+class MaxQLearner(TabularLearner):
+    """MAXQ-Q for a population of ``P`` learners.
+
+    Args:
+        graph: the task graph.
+        n_learners: population size ``P``.
+        alpha: step size (number or schedule).
+        gamma: discount factor.
+        all_states: also update ``C`` for every state visited during the child (needs the
+            executor's ``record_visited``).
+        per_instance: tables per Task-Stack context rather than per subtask.
+    """
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        alpha: float | Schedule = 0.5,
+        gamma: float = 1.0,
+        all_states: bool = False,
+        per_instance: bool = False,
+    ) -> None:
+        super().__init__(graph, n_learners, alpha, gamma, per_instance)
+        self.all_states = all_states
+        if all_states and graph.shaping_nodes:
+            raise GraphError("all-states updating with per-step shaping rewards is not supported")
+        self.internal = bool(graph.internal_nodes)
+        self.C = self.completion_bank()
+        self.C_int = self.completion_bank() if self.internal else self.C
+        self.V = self.primitive_bank()
+
+    # ------------------------------------------------------------------ values
+    def evaluate(self, ctx: StepContext) -> None:
+        """Bottom-up ``V(i, s)`` (external) and ``max_a Q~(i, s, a)`` for every table node."""
+        lay = self.layout
+        b = ctx.abstract.shape[0]
+        value = torch.zeros(b, lay.n_tables, device=ctx.abstract.device)
+        value_int = torch.zeros_like(value)
+        prims = lay.groups[0]
+        idx = self.V.index(ctx.learner[:, None], prims[None, :], self.table_states(ctx, prims), 0)
+        value[:, prims] = self.V.read(idx)
+        value_int[:, prims] = value[:, prims]
+        for ids in lay.groups[1:]:
+            nodes = lay.table_node[ids]
+            available = ctx.available[:, nodes]
+            child_v = value[:, lay.table_children[ids].clamp_min(0)]
+            c = self.table_rows(self.C, ctx, ids, available)
+            c_int = self.table_rows(self.C_int, ctx, ids, available) if self.internal else c
+            q_int = child_v + c_int
+            best = masked_argmax(q_int, available).unsqueeze(-1)
+            dead = ctx.terminated[:, nodes] | ~available.any(-1)
+            zero = torch.zeros((), device=value.device)
+            value[:, ids] = torch.where(dead, zero, (child_v + c).gather(-1, best).squeeze(-1))
+            value_int[:, ids] = torch.where(dead, zero, q_int.gather(-1, best).squeeze(-1))
+        ctx.values["V"] = value
+        ctx.values["V_int"] = value_int
+
+    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
+        """``Q~(i, s, .) = V(., s) + C~(i, s, .)`` for the instances ``inst [B]``."""
+        lay = self.layout
+        table = lay.inst_table[inst.clamp_min(0)]
+        child_v = ctx.values["V"].gather(1, lay.table_children[table].clamp_min(0))
+        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
+        idx = self.C_int.row_index(ctx.learner, table, state, lay.max_children)
+        return child_v + self.C_int.read(idx, lay.table_children[table] >= 0)
+
+    # ------------------------------------------------------------------ updates
+    @staticmethod
+    def targets(discount, internal, terminal, pseudo, v_next, v_next_int):
+        """External and internal completion targets (all arguments broadcast together)."""
+        external = torch.where(terminal, 0.0, discount * v_next)
+        internal = internal + discount * torch.where(terminal, pseudo, v_next_int)
+        return external, internal
+
+    def update(self, batch, ctx: StepContext, step: int) -> None:
+        """Dietterich's MAXQ-Q updates for every finished child and primitive in ``batch``."""
+        alpha = self.alpha(step)
+        lay = self.layout
+        learner = batch["learner"][:, None].expand_as(batch["inst"])
+        table = lay.inst_table[batch["inst"].clamp_min(0)]
+        terminal = batch["terminal"]
+        valid = batch["valid"] & (batch["child_done"] | terminal)
+        v_next = ctx.values["V"].gather(1, table)
+        v_next_int = ctx.values["V_int"].gather(1, table)
+        target, target_int = self.targets(
+            self.gamma ** batch["duration"], batch["internal_reward"], terminal,
+            batch["pseudo_reward"], v_next, v_next_int,
+        )
+        idx = self.C.index(learner, table, batch["state"], batch["child"])
+        self.record_td(learner, batch["node"], target_int - self.C_int.read(idx, valid), valid)
+        self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
+        if self.internal:
+            self.C_int.update(idx.reshape(-1), target_int.reshape(-1), alpha, valid.reshape(-1))
+        if self.all_states and "visited_state" in batch.keys():
+            # every state s_k the child passed through gets the target discounted from s_k
+            late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
+            remaining = batch["duration"][..., None] - batch["visited_time"]
+            ext, internal = self.targets(
+                self.gamma ** remaining, torch.zeros_like(remaining), terminal[..., None],
+                batch["pseudo_reward"][..., None], v_next[..., None], v_next_int[..., None],
+            )
+            vidx = self.C.index(
+                learner[..., None], table[..., None], batch["visited_state"],
+                batch["child"][..., None],
+            )
+            self.C.update(vidx.reshape(-1), ext.reshape(-1), alpha, late.reshape(-1))
+            if self.internal:
+                self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
+
+        prim_table = lay.inst_table[batch["prim_inst"].clamp_min(0)]
+        pidx = self.V.index(batch["learner"], prim_table, batch["prim_state"], 0)
+        self.V.update(pidx, batch["prim_reward"], alpha, batch["prim_valid"])

@@ -1,0 +1,71 @@
+"""SMDP Q-learning at every subtask, and flat Q-learning as its one-level special case.
+
+Each non-primitive ``i`` keeps ``Q(i, s, a)`` over its children and treats them as temporally
+extended actions (Sutton et al. 1999; Dietterich's HSMQ). After child ``a`` ran from ``s`` to
+``s'`` in time ``tau`` with discounted reward ``R``::
+
+    Q(i, s, a) <- (1-alpha) Q(i, s, a) + alpha [R + gamma^tau max_a' Q(i, s', a')]
+
+(internal rewards of ``i`` added to ``R``; a terminal ``s'`` contributes only its pseudo reward).
+On a graph whose root has the primitive actions as children and the full state as its
+abstraction this is Watkins' Q-learning.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from hrl_torch.graph import StepContext
+from hrl_torch.learners.base import TabularLearner
+
+
+class SMDPQLearner(TabularLearner):
+    """SMDP Q-learning for a population of ``P`` learners (see the module docstring).
+
+    Args:
+        graph: the task graph (a flat graph gives Q-learning).
+        n_learners: population size ``P``.
+        alpha: step size (number or schedule).
+        gamma: discount factor.
+        per_instance: tables per Task-Stack context rather than per subtask.
+    """
+
+    def __init__(self, graph, n_learners, alpha=0.5, gamma=1.0, per_instance=False) -> None:
+        super().__init__(graph, n_learners, alpha, gamma, per_instance)
+        self.Q = self.completion_bank()
+        self.composite = self.layout.composite_ids()
+
+    def evaluate(self, ctx: StepContext) -> None:
+        """``max_a Q(i, s, a)`` over available children for every non-primitive table node."""
+        lay = self.layout
+        ids = self.composite
+        nodes = lay.table_node[ids]
+        available = ctx.available[:, nodes]
+        q = self.table_rows(self.Q, ctx, ids, available)
+        best = torch.where(available, q, torch.full_like(q, -torch.inf)).amax(-1)
+        dead = ctx.terminated[:, nodes] | ~available.any(-1)
+        value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
+        value[:, ids] = torch.where(dead, 0.0, best)
+        ctx.values["V"] = value
+
+    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
+        """``Q(i, s, .)`` for the instances ``inst [B]``."""
+        lay = self.layout
+        table = lay.inst_table[inst.clamp_min(0)]
+        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
+        idx = self.Q.row_index(ctx.learner, table, state, lay.max_children)
+        return self.Q.read(idx, lay.table_children[table] >= 0)
+
+    def update(self, batch, ctx: StepContext, step: int) -> None:
+        """One SMDP Q-learning step for every finished child in ``batch``."""
+        lay = self.layout
+        learner = batch["learner"][:, None].expand_as(batch["inst"])
+        table = lay.inst_table[batch["inst"].clamp_min(0)]
+        terminal = batch["terminal"]
+        valid = batch["valid"] & (batch["child_done"] | terminal)
+        discount = self.gamma ** batch["duration"]
+        continuation = torch.where(terminal, batch["pseudo_reward"], ctx.values["V"].gather(1, table))
+        target = batch["discounted_reward"] + batch["internal_reward"] + discount * continuation
+        idx = self.Q.index(learner, table, batch["state"], batch["child"])
+        self.record_td(learner, batch["node"], target - self.Q.read(idx, valid), valid)
+        self.Q.update(idx.reshape(-1), target.reshape(-1), self.alpha(step), valid.reshape(-1))

@@ -1,0 +1,110 @@
+"""Counter-based random numbers for a population of learners.
+
+Every env row ``b`` belongs to learner ``p = b // E`` and has local index ``e = b % E``. A draw
+hashes ``(seed_p, e, stream, counter)``, so learner ``p`` sees the same numbers whether it runs
+alone or inside a population of any size: the property the population tests rely on. The hash
+is a 32-bit integer mixer evaluated in int64 without overflow, so it gives the same bits on
+every device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+_MASK32 = 0xFFFFFFFF
+_MULT = 0x045D9F3B  # < 2**27, so (x < 2**32) * _MULT stays below 2**63
+
+
+def mix32(x: torch.Tensor) -> torch.Tensor:
+    """Hash int64 values in ``[0, 2**32)`` to ``[0, 2**32)`` (shape preserved)."""
+    x = x ^ (x >> 16)
+    x = (x * _MULT) & _MASK32
+    x = x ^ (x >> 16)
+    x = (x * _MULT) & _MASK32
+    return x ^ (x >> 16)
+
+
+def _mix32_int(x: int) -> int:
+    x &= _MASK32
+    x ^= x >> 16
+    x = (x * _MULT) & _MASK32
+    x ^= x >> 16
+    x = (x * _MULT) & _MASK32
+    return x ^ (x >> 16)
+
+
+class BatchRNG:
+    """Reproducible uniform numbers for ``B = P * E`` rows, one independent stream per row.
+
+    Args:
+        seeds: one seed per learner (length ``P``).
+        envs_per_learner: ``E``, rows per learner.
+        stream: a name that separates independent uses (env dynamics, exploration, ...).
+        device: where draws are made.
+    """
+
+    def __init__(
+        self,
+        seeds: Sequence[int],
+        envs_per_learner: int,
+        stream: str,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        if envs_per_learner < 1:
+            raise ValueError(f"envs_per_learner must be >= 1, got {envs_per_learner}")
+        self.device = torch.device(device)
+        self.n_learners = len(seeds)
+        self.envs_per_learner = envs_per_learner
+        stream_key = _mix32_int(sum(ord(c) * 131**k for k, c in enumerate(stream)))
+        seed_keys = torch.tensor(
+            [_mix32_int(_mix32_int(int(s)) ^ stream_key) for s in seeds],
+            dtype=torch.int64,
+            device=self.device,
+        )
+        local = torch.arange(envs_per_learner, dtype=torch.int64, device=self.device)
+        self._row_key = mix32(seed_keys.repeat_interleave(envs_per_learner) ^ local.repeat(len(seeds)))
+        self.counter = 0
+
+    @property
+    def batch_size(self) -> int:
+        """Number of rows ``B``."""
+        return self._row_key.shape[0]
+
+    def _bits(self, extra: int) -> torch.Tensor:
+        """Fresh 32-bit integers of shape ``[B]`` or ``[B, extra]``."""
+        base = _mix32_int(self.counter * 0x9E3779B1 + 0x7F4A7C15)
+        self.counter += 1
+        if extra == 0:
+            return mix32(self._row_key ^ base)
+        cols = mix32(torch.arange(extra, dtype=torch.int64, device=self.device) + base)
+        return mix32(self._row_key[:, None] ^ cols[None, :])
+
+    def uniform(self, extra: int = 0) -> torch.Tensor:
+        """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``)."""
+        return (self._bits(extra) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+
+    def integers(self, high: torch.Tensor | int, extra: int = 0) -> torch.Tensor:
+        """Integers uniform in ``[0, high)``; ``high`` may be a per-row tensor of shape ``[B]``."""
+        u = self.uniform(extra)
+        if isinstance(high, torch.Tensor):
+            high = high.long()
+            if extra:
+                high = high[:, None]
+            return torch.minimum((u * high).long(), high - 1)
+        return (u * high).long().clamp_max(high - 1)
+
+    def normal(self, extra: int = 0) -> torch.Tensor:
+        """Standard normal draws (Box-Muller on two uniform draws)."""
+        u1 = self.uniform(extra).clamp_min(1e-7)
+        u2 = self.uniform(extra)
+        return torch.sqrt(-2.0 * torch.log(u1)) * torch.cos(2.0 * torch.pi * u2)
+
+    def state_dict(self) -> dict[str, int]:
+        """The counter: all a checkpoint needs to continue the stream."""
+        return {"counter": self.counter}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        """Continue from a saved counter."""
+        self.counter = int(state["counter"])

@@ -1,0 +1,188 @@
+"""Run folders: TensorBoard events, a CSV of every logged point, PNG curves and ``summary.json``.
+
+Layout of ``runs/{domain}__{algo}__{timestamp}/``::
+
+    tb/seed_<s>/      TensorBoard events, one run per seed (tags ``charts/``, ``hrl/<subtask>/``,
+                      ``losses/<subtask>/``, ``perf/``; hyperparameters once as text)
+    progress.csv      one row per (logged step, seed): step, seed, metric columns
+    <metric>.png      mean and 95% interval over seeds of each curve metric
+    summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
+    checkpoint.pt     the latest checkpoint (when checkpointing is on)
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+
+def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
+    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    base = Path(root) / f"{domain}__{algo}__{stamp}"
+    path, k = base, 1
+    while path.exists():
+        path, k = Path(f"{base}-{k}"), k + 1
+    path.mkdir(parents=True)
+    return path
+
+
+class RunLogger:
+    """Writes scalars for every seed to TensorBoard and the CSV; draws the curves at the end.
+
+    Args:
+        run_dir: the run folder.
+        seeds: the seed of each learner (one TensorBoard run each).
+        hparams: logged once per seed as text.
+        tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
+    """
+
+    def __init__(
+        self, run_dir: Path, seeds: Sequence[int], hparams: dict, tensorboard: bool = True
+    ) -> None:
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.seeds = list(seeds)
+        self.writers = []
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            text = "\n".join(f"    {k}: {v}" for k, v in sorted(hparams.items()))
+            for s in self.seeds:
+                w = SummaryWriter(str(self.run_dir / "tb" / f"seed_{s}"))
+                w.add_text("hparams", text, 0)
+                self.writers.append(w)
+        (self.run_dir / "hparams.json").write_text(json.dumps(hparams, indent=2, default=str))
+        self.csv_path = self.run_dir / "progress.csv"
+        self._columns: list[str] | None = None
+        if self.csv_path.exists():  # resumed run: keep appending with the same columns
+            with open(self.csv_path) as f:
+                header = f.readline().strip()
+            self._columns = header.split(",") if header else None
+
+    def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
+        """Log ``{tag: [value per seed]}`` at env step ``step`` (NaN values are skipped)."""
+        for k, w in enumerate(self.writers):
+            for tag, values in per_seed.items():
+                v = float(values[k])
+                if not math.isnan(v):
+                    w.add_scalar(tag, v, step)
+        columns = sorted(per_seed)
+        new_file = self._columns is None
+        if new_file:
+            self._columns = columns
+        with open(self.csv_path, "a", newline="") as f:
+            writer = csv.writer(f)
+            if new_file:
+                writer.writerow(["step", "seed", *self._columns])
+            for k, s in enumerate(self.seeds):
+                row = [per_seed[c][k] if c in per_seed else "" for c in self._columns]
+                writer.writerow([step, s, *[_fmt(v) for v in row]])
+
+    def close(self) -> None:
+        """Flush TensorBoard files."""
+        for w in self.writers:
+            w.flush()
+            w.close()
+
+    def write_summary(self, summary: dict) -> Path:
+        """Write ``summary.json``."""
+        path = self.run_dir / "summary.json"
+        path.write_text(json.dumps(summary, indent=2, default=_json_default))
+        return path
+
+
+def _fmt(v) -> str:
+    if v == "" or v is None:
+        return ""
+    return f"{float(v):.6g}"
+
+
+def _json_default(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    return str(x)
+
+
+def read_curves(csv_path: Path, metric: str) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Steps and ``{seed: values}`` of one metric from a progress CSV (missing -> NaN)."""
+    steps: list[int] = []
+    values: dict[int, dict[int, float]] = {}
+    with open(csv_path) as f:
+        for row in csv.DictReader(f):
+            v = row.get(metric, "")
+            step, seed = int(float(row["step"])), int(float(row["seed"]))
+            if step not in steps:
+                steps.append(step)
+            values.setdefault(seed, {})[step] = float(v) if v not in ("", None) else math.nan
+    grid = np.array(sorted(steps))
+    return grid, {s: np.array([d.get(t, math.nan) for t in grid]) for s, d in values.items()}
+
+
+# two-sided 95% quantiles of Student's t for 1..30 degrees of freedom
+_T975 = (
+    12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
+    2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
+    2.052, 2.048, 2.045, 2.042,
+)
+
+
+def t_quantile_975(dof: int) -> float:
+    """The 0.975 quantile of Student's t with ``dof`` degrees of freedom (1.96 above 30)."""
+    if dof < 1:
+        return 0.0
+    return _T975[dof - 1] if dof <= len(_T975) else 1.96
+
+
+def mean_ci95(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over rows (seeds) and the half-width of a 95% t-interval, per column (NaN-aware)."""
+    n = np.sum(~np.isnan(matrix), axis=0)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(matrix, axis=0)
+        std = np.nanstd(matrix, axis=0, ddof=1)
+    half = np.array([t_quantile_975(int(k) - 1) for k in n]) * np.nan_to_num(std)
+    return mean, half / np.sqrt(np.maximum(n, 1))
+
+
+def plot_curves(
+    csv_path: Path, metrics: Sequence[str], out_dir: Path, title: str = "",
+    reference: dict[str, float] | None = None,
+) -> list[Path]:
+    """One PNG per metric: mean over seeds with a shaded 95% interval (``reference`` lines)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for metric in metrics:
+        steps, curves = read_curves(csv_path, metric)
+        if not curves:
+            continue
+        matrix = np.stack(list(curves.values()))
+        if np.all(np.isnan(matrix)):
+            continue
+        mean, half = mean_ci95(matrix)
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.plot(steps, mean, label=f"mean of {matrix.shape[0]} seeds")
+        ax.fill_between(steps, mean - half, mean + half, alpha=0.25, label="95% interval")
+        for name, value in (reference or {}).items():
+            ax.axhline(value, ls="--", c="gray", lw=1, label=name)
+        ax.set_xlabel("env steps per learner")
+        ax.set_ylabel(metric)
+        ax.set_title(title or metric)
+        ax.legend(loc="lower right", fontsize=8)
+        fig.tight_layout()
+        path = out_dir / f"{metric.replace('/', '_')}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths

@@ -1,0 +1,144 @@
+"""Tensor tables for a population of tabular learners.
+
+A ``TableBank`` keeps one kind of table (completion ``C``, primitive values ``V``, ...) for every
+table node of a hierarchy in one flat buffer of shape ``[P, total]``: node ``t`` owns the block
+``offset[t] : offset[t] + n_states[t] * n_cols[t]``. One flat buffer lets a whole batch of
+transitions, from any mix of nodes and learners, be read with one ``gather`` and written with one
+``index_put_``. ``TableLayout`` says which table node serves which executor instance: one table per
+subtask for recursively optimal learners, one per instance (per Task-Stack context) for
+hierarchically optimal ones.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from hrl_torch.graph import TaskGraph
+
+
+class TableLayout(nn.Module):
+    """Table nodes of a learner over a task graph.
+
+    Args:
+        graph: the compiled task graph.
+        per_instance: one table per instance (hierarchical optimality) instead of per subtask.
+
+    Attributes (buffers): ``table_node [T]`` graph node of each table, ``table_children [T, A]``
+    table ids of the children (-1 padding), ``inst_table [I]`` table of each instance, and
+    ``groups``: table ids grouped by height, leaves first, for bottom-up evaluation.
+    """
+
+    def __init__(self, graph: TaskGraph, per_instance: bool) -> None:
+        super().__init__()
+        self.per_instance = per_instance
+        if per_instance:
+            table_node = graph.inst_node.clone()
+            table_children = graph.inst_children.clone()
+            inst_table = torch.arange(graph.n_instances)
+        else:
+            table_node = torch.arange(graph.n_nodes)
+            table_children = graph.node_children.clone()
+            inst_table = graph.inst_node.clone()
+        self.register_buffer("table_node", table_node, persistent=False)
+        self.register_buffer("table_children", table_children, persistent=False)
+        self.register_buffer("inst_table", inst_table, persistent=False)
+        self.register_buffer(
+            "table_is_primitive", graph.node_is_primitive[table_node], persistent=False
+        )
+        self.register_buffer("table_n_states", graph.node_n_states[table_node], persistent=False)
+        self.register_buffer(
+            "table_n_children", graph.node_n_children[table_node], persistent=False
+        )
+        height = graph.node_height[table_node]
+        self.groups = [
+            (height == h).nonzero().squeeze(1) for h in range(int(height.max()) + 1)
+        ]
+        self.n_tables = int(table_node.shape[0])
+        self.max_children = graph.max_children
+
+    def composite_ids(self) -> torch.Tensor:
+        """Ids of the non-primitive tables."""
+        return (~self.table_is_primitive).nonzero().squeeze(1)
+
+    def primitive_ids(self) -> torch.Tensor:
+        """Ids of the primitive tables."""
+        return self.table_is_primitive.nonzero().squeeze(1)
+
+
+class TableBank(nn.Module):
+    """One kind of table for all table nodes and all ``P`` learners, stored flat.
+
+    Args:
+        n_learners: population size ``P``.
+        n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
+        n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
+        init: initial value of every entry.
+    """
+
+    def __init__(
+        self, n_learners: int, n_states: torch.Tensor, n_cols: torch.Tensor, init: float = 0.0
+    ) -> None:
+        super().__init__()
+        sizes = n_states.long() * n_cols.long()
+        offset = torch.cumsum(sizes, 0) - sizes
+        self.total = int(sizes.sum())
+        self.n_learners = n_learners
+        self.register_buffer("offset", offset, persistent=False)
+        self.register_buffer("n_cols", n_cols.long(), persistent=False)
+        self.register_buffer("data", torch.full((n_learners, max(self.total, 1)), float(init)))
+        self._count = torch.zeros(0)
+        self._sum = torch.zeros(0)
+
+    def index(
+        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, col: torch.Tensor
+    ) -> torch.Tensor:
+        """Flat indices into ``data.view(-1)``; all arguments broadcast together."""
+        return learner * self.data.shape[1] + self.offset[table] + state * self.n_cols[table] + col
+
+    def row_index(
+        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, width: int
+    ) -> torch.Tensor:
+        """Flat indices of whole rows: shape ``learner.shape + (width,)``."""
+        cols = torch.arange(width, device=self.data.device)
+        base = learner * self.data.shape[1] + self.offset[table] + state * self.n_cols[table]
+        return base.unsqueeze(-1) + cols
+
+    def read(self, flat_index: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+        """Values at flat indices; entries where ``valid`` is False read as 0."""
+        if valid is None:
+            return self.data.view(-1)[flat_index]
+        safe = torch.where(valid, flat_index, torch.zeros_like(flat_index))
+        return torch.where(valid, self.data.view(-1)[safe], torch.zeros((), device=safe.device))
+
+    def view(self, table: int, learner: int = 0) -> torch.Tensor:
+        """The ``[n_states, n_cols]`` table of one node and learner (a view, for inspection)."""
+        start = int(self.offset[table])
+        n_cols = int(self.n_cols[table])
+        n = (int(self.offset[table + 1]) if table + 1 < len(self.offset) else self.total) - start
+        return self.data[learner, start : start + n].view(-1, n_cols)
+
+    def update(
+        self, flat_index: torch.Tensor, target: torch.Tensor, alpha: torch.Tensor | float,
+        mask: torch.Tensor,
+    ) -> None:
+        """Move entries toward their targets: ``W <- (1-a)^n W + (1-(1-a)^n) mean(target)``.
+
+        Every entry hit by ``n`` rows in this batch takes the ``n`` same-step updates at once,
+        order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
+        Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
+        """
+        flat = self.data.view(-1)
+        if self._count.shape != flat.shape or self._count.device != flat.device:
+            self._count = torch.zeros_like(flat)
+            self._sum = torch.zeros_like(flat)
+        weight = mask.to(flat.dtype)
+        index = torch.where(mask, flat_index, torch.zeros_like(flat_index))
+        self._count.index_add_(0, index, weight)
+        self._sum.index_add_(0, index, weight * torch.nan_to_num(target))
+        n = self._count[index]
+        keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W
+        mean = self._sum[index] / n.clamp_min(1.0)
+        flat[index] = keep * flat[index] + (1.0 - keep) * mean
+        self._count[index] = 0.0
+        self._sum[index] = 0.0

@@ -1,0 +1,353 @@
+"""The training loop: batched env -> executor -> learner, with evaluation, logging and resume.
+
+One ``Trainer`` trains a population of ``P`` learners (one per seed) on ``P * E`` env rows. Step
+counts are *env steps per learner* (the ``E`` rows of a learner each add one per batched step);
+exploration and step-size schedules read that count.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import torch
+from tqdm import tqdm
+
+from hrl_torch.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor
+from hrl_torch.exploration import Exploration, Greedy
+from hrl_torch.graph import TaskGraph
+from hrl_torch.learners.base import Learner, ValuePolicy
+from hrl_torch.rng import BatchRNG
+from hrl_torch.runlog import RunLogger
+
+
+@dataclass
+class TrainConfig:
+    """Training options.
+
+    Attributes:
+        steps: env steps per learner to train for.
+        eval_every: env steps per learner between greedy evaluations (0: only at the end).
+        eval_episodes: greedy evaluation episodes per learner.
+        eval_max_steps: cap on the length of an evaluation episode.
+        log_every: env steps per learner between training-metric logs.
+        threshold: record the first evaluation at which a learner's return reaches this.
+        checkpoint_every: env steps per learner between checkpoints (0: only at the end).
+        progress: show a progress bar.
+    """
+
+    steps: int = 50_000
+    eval_every: int = 5_000
+    eval_episodes: int = 100
+    eval_max_steps: int = 1_000
+    log_every: int = 2_000
+    threshold: float | None = None
+    checkpoint_every: int = 0
+    progress: bool = True
+
+
+@dataclass
+class TrainResult:
+    """Per-learner outcome of ``Trainer.train``."""
+
+    final_eval: list[float]
+    final_success: list[float]
+    steps_to_threshold: list[int | None]
+    env_steps_per_learner: int
+    train_seconds: float
+    env_steps_per_second: float
+    curve: list[tuple[int, list[float]]] = field(default_factory=list)
+
+
+class Trainer:
+    """Trains ``learner`` on ``env`` through ``graph``'s Task-Stack executor.
+
+    Args:
+        env: batched training env with ``P * E`` rows.
+        graph: the task graph.
+        learner: the population learner (``P`` = ``env.n_learners``).
+        exploration: exploration strategy during training.
+        config: loop options.
+        eval_env: batched env with ``P * eval_episodes`` rows for greedy evaluation.
+        executor_config: guard and all-states options.
+        logger: where metrics go (``None``: nowhere).
+    """
+
+    def __init__(
+        self,
+        env,
+        graph: TaskGraph,
+        learner: Learner,
+        exploration: Exploration,
+        config: TrainConfig | None = None,
+        eval_env=None,
+        executor_config: ExecutorConfig | None = None,
+        logger: RunLogger | None = None,
+    ) -> None:
+        self.env, self.graph, self.learner = env, graph, learner
+        self.config = config or TrainConfig()
+        self.executor_config = executor_config or ExecutorConfig()
+        self.eval_env = eval_env
+        self.logger = logger
+        if learner.n_learners != env.n_learners:
+            raise ValueError(f"learner has P={learner.n_learners} but env has {env.n_learners}")
+        self.P, self.E = env.n_learners, env.envs_per_learner
+        self.executor = HierarchicalExecutor(
+            graph, env.batch_size, self.E, learner.gamma, self.executor_config
+        )
+        self.rows = env.learner_of_row()
+        self.policy = ValuePolicy(learner, exploration, BatchRNG(env.seeds, self.E, "explore"))
+        self.step = 0  # env steps per learner
+        self.action: torch.Tensor | None = None
+        self.ctx = None
+        self.train_seconds = 0.0
+        self._episodes = _EpisodeTracker(env.batch_size, self.P, self.E)
+        self.curve: list[tuple[int, list[float]]] = []
+        self.first_hit: list[int | None] = [None] * self.P
+        self._next = {"log": 0, "eval": 0, "ckpt": 0}
+
+    # ------------------------------------------------------------------ stepping
+    def _begin(self) -> None:
+        obs = self.env.reset()
+        self.ctx = self.graph.context(obs, self.rows)
+        self.learner.evaluate(self.ctx)
+        self.action = self.executor.act(self.ctx, self.policy, self.step)
+
+    def train_step(self) -> None:
+        """One batched step: every row takes one primitive action, the learner updates."""
+        if self.action is None:
+            self._begin()
+        td = self.env.step(self.action)
+        ctx = self.graph.context(td, self.rows)
+        self.learner.evaluate(ctx)
+        batch = self.executor.observe(td, ctx)
+        self.learner.update(batch, ctx, self.step)
+        self._episodes.add(td)
+        self.step += self.E
+        self.ctx = ctx
+        self.action = self.executor.act(ctx, self.policy, self.step)
+
+    def train(self, steps: int | None = None, run_dir=None) -> TrainResult:
+        """Train until ``steps`` env steps per learner (default ``config.steps``)."""
+        cfg = self.config
+        total = cfg.steps if steps is None else steps
+        bar = tqdm(total=total, initial=self.step, unit="step", disable=not cfg.progress,
+                   desc="train", dynamic_ncols=True)
+        while self.step < total:
+            t0 = time.perf_counter()
+            self.train_step()
+            self.train_seconds += time.perf_counter() - t0
+            bar.update(self.E)
+            if self.step >= self._next["log"]:
+                self._log_training()
+                self._next["log"] = self.step + cfg.log_every
+            if self.eval_env is not None and cfg.eval_every and self.step >= self._next["eval"]:
+                self._evaluate_and_log()
+                self._next["eval"] = self.step + cfg.eval_every
+            if run_dir is not None and cfg.checkpoint_every and self.step >= self._next["ckpt"]:
+                self.save(f"{run_dir}/checkpoint.pt")
+                self._next["ckpt"] = self.step + cfg.checkpoint_every
+        bar.close()
+        final, success = [float("nan")] * self.P, [float("nan")] * self.P
+        if self.eval_env is not None:
+            if not self.curve or self.curve[-1][0] != self.step:
+                self._evaluate_and_log()
+            final, success = self.curve[-1][1], self._last_success
+        if run_dir is not None:
+            self.save(f"{run_dir}/checkpoint.pt")
+        sps = self.step * self.P / max(self.train_seconds, 1e-9)
+        return TrainResult(final, success, list(self.first_hit), self.step, self.train_seconds,
+                           sps, list(self.curve))
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Greedy episodes on ``eval_env``: mean return and success rate per learner ``[P]``."""
+        env, cfg = self.eval_env, self.config
+        executor = HierarchicalExecutor(
+            self.graph, env.batch_size, env.envs_per_learner, self.learner.gamma,
+            self.executor_config,
+        )
+        policy = ValuePolicy(self.learner, Greedy(), self._eval_rng())
+        rows = env.learner_of_row()
+        obs = env.reset()
+        ctx = self.graph.context(obs, rows)
+        self.learner.evaluate(ctx)
+        action = executor.act(ctx, policy, self.step)
+        ret = torch.zeros(env.batch_size)
+        success = torch.zeros(env.batch_size, dtype=torch.bool)
+        finished = torch.zeros(env.batch_size, dtype=torch.bool)
+        for _ in range(cfg.eval_max_steps):
+            td = env.step(action)
+            ret += td["reward"].cpu() * ~finished
+            ended = (td["terminated"] | td["truncated"]).cpu()
+            success |= td["terminated"].cpu() & ~finished
+            finished |= ended
+            if bool(finished.all()):
+                break
+            ctx = self.graph.context(td, rows)
+            self.learner.evaluate(ctx)
+            executor.observe(td, ctx)
+            action = executor.act(ctx, policy, self.step)
+        n = env.envs_per_learner
+        return ret.view(-1, n).mean(1), success.float().view(-1, n).mean(1)
+
+    def _eval_rng(self) -> BatchRNG:
+        if not hasattr(self, "_eval_rng_state"):
+            self._eval_rng_state = BatchRNG(
+                self.eval_env.seeds, self.eval_env.envs_per_learner, "eval-explore"
+            )
+        return self._eval_rng_state
+
+    def _evaluate_and_log(self) -> None:
+        mean, success = self.evaluate()
+        values = mean.tolist()
+        self._last_success = success.tolist()
+        self.curve.append((self.step, values))
+        threshold = self.config.threshold
+        for p, v in enumerate(values):
+            if threshold is not None and self.first_hit[p] is None and v >= threshold:
+                self.first_hit[p] = self.step
+        if self.logger:
+            self.logger.log(self.step, {"charts/eval_return": values,
+                                        "charts/eval_success": self._last_success})
+
+    def _log_training(self) -> None:
+        if not self.logger:
+            return
+        g = self.graph
+        scalars = self._episodes.flush()
+        scalars["perf/env_steps_per_s"] = [
+            self.step * self.P / max(self.train_seconds, 1e-9)
+        ] * self.P
+        stats = self.executor.stats
+        for k in g.subtasks():
+            name = g.names[k]
+            calls, ends = stats.calls[:, k], stats.ends[:, k]
+            scalars[f"hrl/{name}/calls"] = calls.tolist()
+            scalars[f"hrl/{name}/mean_duration"] = _ratio(stats.durations[:, k], ends)
+            scalars[f"hrl/{name}/success"] = _ratio(stats.successes[:, k], ends)
+            scalars[f"losses/{name}/td_error"] = _ratio(
+                self.learner.td_abs[:, k], self.learner.td_count[:, k]
+            )
+        stats.reset()
+        self.learner.td_abs.zero_()
+        self.learner.td_count.zero_()
+        self.logger.log(self.step, scalars)
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        """Everything needed to continue this run exactly."""
+        state = {
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "learner": self.learner.state_dict(),
+            "env": self.env.state_dict(),
+            "executor": self.executor.state_dict(),
+            "explore_rng": self.policy.rng.state_dict(),
+            "action": self.action if self.action is not None else torch.zeros(0),
+            "episodes": self._episodes.state_dict(),
+            "curve": [[s, list(v)] for s, v in self.curve],
+            "first_hit": [-1 if h is None else h for h in self.first_hit],
+            "next": dict(self._next),
+        }
+        if self.eval_env is not None:
+            state["eval_env"] = self.eval_env.state_dict()
+            state["eval_rng"] = self._eval_rng().state_dict()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``; on any mismatch nothing changes and ``CheckpointError`` rises."""
+        backup = copy.deepcopy(self.state_dict())
+        try:
+            self._apply(state)
+        except Exception as err:
+            self._apply(backup)
+            raise CheckpointError(f"checkpoint does not fit this run: {err}") from err
+
+    def _apply(self, state: dict) -> None:
+        self.learner.load_state_dict(state["learner"])
+        self.env.load_state_dict(state["env"])
+        self.executor.load_state_dict(state["executor"])
+        self.policy.rng.load_state_dict(state["explore_rng"])
+        self._episodes.load_state_dict(state["episodes"])
+        if self.eval_env is not None and "eval_env" in state:
+            self.eval_env.load_state_dict(state["eval_env"])
+            self._eval_rng().load_state_dict(state["eval_rng"])
+        action = state["action"]
+        self.action = None if action.numel() == 0 else action.clone()
+        self.step = int(state["step"])
+        self.train_seconds = float(state["train_seconds"])
+        self.curve = [(int(s), [float(x) for x in v]) for s, v in state["curve"]]
+        self.first_hit = [None if h < 0 else int(h) for h in state["first_hit"]]
+        self._next = {k: int(v) for k, v in state["next"].items()}
+        if self.action is not None:
+            self.ctx = None  # recomputed lazily: act() already ran before the save
+
+    def save(self, path) -> None:
+        """Write a checkpoint of this trainer."""
+        save_checkpoint(path, {"trainer": self.state_dict()})
+
+    def load(self, path) -> None:
+        """Continue from a checkpoint written by ``save``."""
+        self.load_state_dict(load_checkpoint(path)["trainer"])
+
+
+def _ratio(num: torch.Tensor, den: torch.Tensor) -> list[float]:
+    return torch.where(den > 0, num / den.clamp_min(1), torch.nan).tolist()
+
+
+class _EpisodeTracker:
+    """Returns, lengths and successes of finished training episodes, per learner."""
+
+    def __init__(self, batch_size: int, n_learners: int, envs_per_learner: int) -> None:
+        self.rows = torch.arange(batch_size) // envs_per_learner
+        self.n_learners = n_learners
+        self.ret = torch.zeros(batch_size)
+        self.length = torch.zeros(batch_size)
+        self.sums = torch.zeros(4, n_learners)  # episodes, return, length, successes
+
+    def add(self, td) -> None:
+        real = (~td["is_init"]).cpu()
+        self.ret += td["reward"].cpu() * real
+        self.length += real.float()
+        ended = ((td["terminated"] | td["truncated"]).cpu() & real).float()
+        values = torch.stack([ended, self.ret * ended, self.length * ended,
+                              td["terminated"].cpu().float() * ended])
+        self.sums.index_add_(1, self.rows, values)
+        self.ret *= 1 - ended
+        self.length *= 1 - ended
+
+    def flush(self) -> dict[str, list[float]]:
+        n = self.sums[0]
+        out = {
+            "charts/episode_return": _ratio(self.sums[1], n),
+            "charts/episode_length": _ratio(self.sums[2], n),
+            "charts/episode_success": _ratio(self.sums[3], n),
+        }
+        self.sums.zero_()
+        return out
+
+    def state_dict(self) -> dict:
+        return {"ret": self.ret.clone(), "length": self.length.clone(), "sums": self.sums.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k in ("ret", "length", "sums"):
+            if state[k].shape != getattr(self, k).shape:
+                raise ValueError(f"episode tracker {k!r} shape mismatch")
+            setattr(self, k, state[k].clone())
+
+
+def hparams_of(**parts) -> dict:
+    """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
+    out = {}
+    for name, value in parts.items():
+        if hasattr(value, "__dataclass_fields__"):
+            out.update({f"{name}.{k}": v for k, v in asdict(value).items()})
+        elif isinstance(value, Callable):
+            out[name] = getattr(value, "__name__", repr(value))
+        else:
+            out[name] = value
+    return out
