@@ -8,6 +8,11 @@ import gymnasium
 
 _REGISTRATIONS = {
     "hrl/Taxi-v0": "envs.taxi:gymnasium_env",
+    "hrl/TaxiFuel-v0": "envs.taxi_fuel:gymnasium_env",
+    "hrl/ShipSteering-v0": "envs.ship:gymnasium_env",
+    "hrl/SmallAGV-v0": "envs.agv_small:gymnasium_env",
+    "hrl/AGV-v0": "envs.agv:gymnasium_env",
+    "hrl/AGVContinuous-v0": "envs.agv:gymnasium_env_continuous",
 }
 
 
