@@ -28,8 +28,12 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from envs.taxi import N_ACTIONS, STATIONS
+from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import MaxQLearner, SMDPQLearner
+from hrl_torch.trainer import TrainConfig
 
 IN_TAXI = 4
 STATION_NAMES = "RGYB"
@@ -40,8 +44,9 @@ class Navigate(Subtask):
     """Navigate(t): drive to station ``t``; abstraction: taxi location."""
 
     def __init__(self, target: int) -> None:
-        super().__init__(f"Navigate_{STATION_NAMES[target]}", ["North", "South", "East", "West"],
-                         n_states=25)
+        super().__init__(
+            f"Navigate_{STATION_NAMES[target]}", ["North", "South", "East", "West"], n_states=25
+        )
         self.target = target
         self.register_buffer("target_loc", _STATION_LOC[target].clone(), persistent=False)
 
@@ -67,23 +72,32 @@ def taxi_hierarchy() -> TaskGraph:
     navs = [Navigate(t) for t in range(4)]
     nav_names = [n.name for n in navs]
     root = Subtask(
-        "Root", ["Get", "Put"], n_states=20,
+        "Root",
+        ["Get", "Put"],
+        n_states=20,
         abstract=lambda o: o["passenger"] * 4 + o["destination"],
     )
     get = Subtask(
-        "Get", [*nav_names, "Pickup"], n_states=125,
+        "Get",
+        [*nav_names, "Pickup"],
+        n_states=125,
         abstract=lambda o: o["taxi_loc"] * 5 + o["passenger"],
         terminated=lambda o: o["passenger"] == IN_TAXI,
         child_mask=_bind("passenger"),
     )
     put = Subtask(
-        "Put", [*nav_names, "Putdown"], n_states=100,
+        "Put",
+        [*nav_names, "Putdown"],
+        n_states=100,
         abstract=lambda o: o["taxi_loc"] * 4 + o["destination"],
         terminated=lambda o: o["passenger"] != IN_TAXI,
         child_mask=_bind("destination"),
     )
     prims = [
-        Primitive("South", 0), Primitive("North", 1), Primitive("East", 2), Primitive("West", 3),
+        Primitive("South", 0),
+        Primitive("North", 1),
+        Primitive("East", 2),
+        Primitive("West", 3),
         Primitive("Pickup", 4, 125, lambda o: o["taxi_loc"] * 5 + o["passenger"]),
         Primitive("Putdown", 5, 100, lambda o: o["taxi_loc"] * 4 + o["destination"]),
     ]
@@ -95,3 +109,58 @@ def flat_graph(n_states: int = 500, n_actions: int = N_ACTIONS) -> TaskGraph:
     names = [f"a{k}" for k in range(n_actions)]
     root = Subtask("Root", names, n_states=n_states, abstract=lambda o: o["observation"])
     return TaskGraph("Root", [root, *(Primitive(n, k) for k, n in enumerate(names))], n_actions)
+
+
+# ---------------------------------------------------------------------- experiments
+def make_env(seeds, envs_per_learner: int, backend: str = "torch"):
+    """Taxi for ``seeds``: the batched env, or gymnasium's own ``Taxi-v4`` through the adapter."""
+    if backend == "torch":
+        return TaxiEnv(seeds, envs_per_learner)
+    if backend == "gymnasium":
+        import gymnasium
+
+        from hrl_torch.adapters import GymnasiumBatchEnv
+
+        return GymnasiumBatchEnv(
+            lambda: gymnasium.make("Taxi-v4"), seeds, envs_per_learner, decode=decode
+        )
+    raise ValueError(f"unknown backend {backend!r}")
+
+
+def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
+
+
+DOMAIN = DomainSpec(
+    name="taxi",
+    description="Dietterich's taxi (gymnasium Taxi-v4 dynamics)",
+    make_env=make_env,
+    backends=("torch", "gymnasium"),
+    reference={"optimal expected return 7.93": 7.93, "threshold 7.5": 7.5},
+    algos={
+        "maxq-q": AlgoSpec(
+            make_graph=taxi_hierarchy,
+            make_learner=lambda g, p: MaxQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_exploration=_epsilon,
+            train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
+            envs_per_learner=256,
+            description="MAXQ-Q (Dietterich 2000) on the MAXQ task graph",
+        ),
+        "smdp-q": AlgoSpec(
+            make_graph=taxi_hierarchy,
+            make_learner=lambda g, p: SMDPQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_exploration=_epsilon,
+            train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
+            envs_per_learner=256,
+            description="SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph",
+        ),
+        "q": AlgoSpec(
+            make_graph=flat_graph,
+            make_learner=lambda g, p: SMDPQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_exploration=_epsilon,
+            train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
+            envs_per_learner=256,
+            description="flat Q-learning over the 500 states",
+        ),
+    },
+)

@@ -139,7 +139,11 @@ class TaxiEnv(BatchedEnv):
 
     state_keys = ("state",)
     observation_sizes = {
-        "observation": N_STATES, "taxi_row": 5, "taxi_col": 5, "taxi_loc": 25, "passenger": 5,
+        "observation": N_STATES,
+        "taxi_row": 5,
+        "taxi_col": 5,
+        "taxi_loc": 25,
+        "passenger": 5,
         "destination": 4,
     }
 

@@ -79,15 +79,20 @@ class GymnasiumBatchEnv:
             reward[b] = r
         self.done = torch.from_numpy(terminated | truncated)
         return self._output(
-            torch.from_numpy(reward), torch.from_numpy(terminated), torch.from_numpy(truncated),
+            torch.from_numpy(reward),
+            torch.from_numpy(terminated),
+            torch.from_numpy(truncated),
             torch.from_numpy(is_init),
         )
 
     def _output(self, reward, terminated, truncated, is_init) -> TensorDict:
         fields = self.decode(torch.as_tensor(np.stack(self._obs)))
         fields.update(
-            reward=reward.float(), duration=(~is_init).float(), terminated=terminated,
-            truncated=truncated, is_init=is_init,
+            reward=reward.float(),
+            duration=(~is_init).float(),
+            terminated=terminated,
+            truncated=truncated,
+            is_init=is_init,
         )
         return TensorDict(fields, batch_size=[self.batch_size])
 
@@ -125,7 +130,9 @@ class BatchedToGymnasium(gym.Env):
             self.action_space = gym.spaces.Discrete(self._env.n_actions)
         else:
             low, high = self._env.action_bounds
-            self.action_space = gym.spaces.Box(np.array(low, np.float32), np.array(high, np.float32))
+            self.action_space = gym.spaces.Box(
+                np.array(low, np.float32), np.array(high, np.float32)
+            )
         self.render_mode = render_mode
 
     def _obs(self, td: TensorDict) -> dict:
@@ -152,6 +159,9 @@ class BatchedToGymnasium(gym.Env):
             a = torch.as_tensor(np.asarray(action, np.float32)).reshape(1, -1)
         td = self._env.step(a)
         return (
-            self._obs(td), float(td["reward"][0]), bool(td["terminated"][0]),
-            bool(td["truncated"][0]), {"duration": float(td["duration"][0])},
+            self._obs(td),
+            float(td["reward"][0]),
+            bool(td["terminated"][0]),
+            bool(td["truncated"][0]),
+            {"duration": float(td["duration"][0])},
         )

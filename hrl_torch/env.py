@@ -96,7 +96,9 @@ class BatchedEnv:
         action = torch.as_tensor(action, device=self.device)
         if self.n_actions is not None:
             if action.shape != (self.batch_size,):
-                raise ValueError(f"action must have shape [{self.batch_size}], got {tuple(action.shape)}")
+                raise ValueError(
+                    f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
+                )
             bad = (action < 0) | (action >= self.n_actions)
             if bool((bad & ~self.done).any()):
                 row = int((bad & ~self.done).nonzero()[0])
@@ -125,7 +127,10 @@ class BatchedEnv:
     def _output(self, reward, duration, terminated, truncated, is_init) -> TensorDict:
         fields = self._observe()
         fields.update(
-            reward=reward, duration=duration, terminated=terminated, truncated=truncated,
+            reward=reward,
+            duration=duration,
+            terminated=terminated,
+            truncated=truncated,
             is_init=is_init,
         )
         return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
@@ -137,7 +142,9 @@ class BatchedEnv:
     def state_dict(self) -> dict:
         """Every tensor and counter needed to continue exactly."""
         state = {k: getattr(self, k).clone() for k in self.state_keys}
-        state.update(elapsed=self.elapsed.clone(), done=self.done.clone(), rng=self.rng.state_dict())
+        state.update(
+            elapsed=self.elapsed.clone(), done=self.done.clone(), rng=self.rng.state_dict()
+        )
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -146,6 +153,8 @@ class BatchedEnv:
             value = state[k]
             current = getattr(self, k)
             if value.shape != current.shape:
-                raise ValueError(f"env state {k!r}: shape {tuple(value.shape)} != {tuple(current.shape)}")
+                raise ValueError(
+                    f"env state {k!r}: shape {tuple(value.shape)} != {tuple(current.shape)}"
+                )
             setattr(self, k, value.to(self.device).clone())
         self.rng.load_state_dict(state["rng"])

@@ -44,10 +44,17 @@ class SubtaskTimeoutError(RuntimeError):
 class Policy(Protocol):
     """Chooses children for the instances on top of the stacks."""
 
+    def new_step(self) -> None:
+        """Called once at the start of every ``act`` (draw this step's random numbers)."""
+        ...
+
     def select(
-        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int
+        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(child slot [B], greedy flag [B])`` for instances ``inst [B]``."""
+        """Return ``(child slot [B], greedy flag [B])`` for instances ``inst [B]``.
+
+        ``push`` counts the pushes made so far in this step.
+        """
         ...
 
 
@@ -56,7 +63,7 @@ class ExecutorConfig:
     """Executor options.
 
     Attributes:
-        max_subtask_steps: guard: primitive steps one subtask invocation may take.
+        max_subtask_steps: guard: primitive steps one invocation of a non-root subtask may take.
         on_timeout: ``"raise"`` a ``SubtaskTimeoutError``, or ``"abort"`` the subtask (and
             what it called) and carry on; aborted children produce no learning target.
         record_visited: keep the last ``L`` states visited during each child for all-states
@@ -96,8 +103,21 @@ class HierarchicalExecutor:
     """
 
     _state_keys = (
-        "stack", "top", "child", "start_state", "steps", "time", "reward", "disc_reward",
-        "internal", "greedy", "inv_steps", "done", "vis_state", "vis_steps", "vis_time",
+        "stack",
+        "top",
+        "child",
+        "start_state",
+        "steps",
+        "time",
+        "reward",
+        "disc_reward",
+        "internal",
+        "greedy",
+        "inv_steps",
+        "done",
+        "vis_state",
+        "vis_steps",
+        "vis_time",
     )
 
     def __init__(
@@ -156,6 +176,8 @@ class HierarchicalExecutor:
         inst = _at(self.stack, self.top)
         need = (self.top >= 0) & ~g.node_is_primitive[g.inst_node[inst.clamp_min(0)]]
         need &= ~self.done
+        policy.new_step()
+        push = 0
         while bool(need.any()):
             node = g.inst_node[inst.clamp_min(0)]
             available = ctx.available[torch.arange(self.batch_size, device=self.device), node]
@@ -166,7 +188,8 @@ class HierarchicalExecutor:
                     f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
                     f"(every child is terminated, not initiable or masked)"
                 )
-            choice, greedy = policy.select(inst, ctx, available, step)
+            choice, greedy = policy.select(inst, ctx, available, step, push)
+            push += 1
             level = self.top
             parent_greedy = _at(self.greedy, (level - 1).clamp_min(0)) | (level == 0)
             _put(self.child, level, choice, need)
@@ -213,7 +236,7 @@ class HierarchicalExecutor:
         is_prim = g.node_is_primitive[node] & active
 
         # accumulate reward and time of the current child at every level
-        disc = self.gamma ** self.time
+        disc = self.gamma**self.time
         self.reward += active * reward[:, None]
         self.disc_reward += active * disc * reward[:, None]
         if g.shaping_nodes and self._obs is not None:
@@ -226,14 +249,16 @@ class HierarchicalExecutor:
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
         ended_own = own | is_prim | (active & env_term[:, None])
-        timeout = active & ~is_prim & (self.inv_steps >= cfg.max_subtask_steps)
+        # the guard spares the root: a continuing root never terminates by design
+        timeout = active & ~is_prim & (levels > 0) & (self.inv_steps >= cfg.max_subtask_steps)
         if bool(timeout.any()):
             row, lvl = (int(v) for v in timeout.nonzero()[0])
             name = g.names[int(node[row, lvl])]
             if cfg.on_timeout == "raise":
+                path = g.instance_path(int(self.stack[row, lvl]))
                 raise SubtaskTimeoutError(
                     f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
-                    f"terminating (env row {row}, instance {g.instance_path(int(self.stack[row, lvl]))})"
+                    f"terminating (env row {row}, instance {path})"
                 )
         cut = ended_own | timeout | (active & env_trunc[:, None])
         popped = (cut.long().cumsum(1) > 0) & active
@@ -255,14 +280,21 @@ class HierarchicalExecutor:
         self.done = env_term | env_trunc
         return batch
 
-    def _record_visits(self, continuing: torch.Tensor, ctx: StepContext, node: torch.Tensor) -> None:
-        """Append ``s'`` (abstracted for each level's node) to the visit buffer of the levels
-        whose child goes on; visit ``k`` of a child lives in slot ``k % L``."""
+    def _record_visits(
+        self, continuing: torch.Tensor, ctx: StepContext, node: torch.Tensor
+    ) -> None:
+        """Append ``s'`` to the visit buffer of the levels whose child goes on.
+
+        ``s'`` is abstracted for each level's node; visit ``k`` of a child lives in slot
+        ``k % L``.
+        """
         size = self.config.record_visited
         slot = (self.steps % size).unsqueeze(-1)  # steps already counts this step: visit index
         state = ctx.abstract.gather(1, node)
         for buf, value in (
-            (self.vis_state, state), (self.vis_steps, self.steps), (self.vis_time, self.time)
+            (self.vis_state, state),
+            (self.vis_steps, self.steps),
+            (self.vis_time, self.time),
         ):
             old = buf.gather(2, slot).squeeze(-1)
             buf.scatter_(2, slot, torch.where(continuing, value.to(buf.dtype), old).unsqueeze(-1))
@@ -313,9 +345,8 @@ class HierarchicalExecutor:
                 visited_state=self.vis_state.clone(),
                 visited_steps=self.vis_steps.clone(),
                 visited_time=self.vis_time.clone(),
-                visited_valid=self._visit_slots[None, None, :] < self.steps.clamp_max(
-                    self.config.record_visited
-                )[:, :, None],
+                visited_valid=self._visit_slots[None, None, :]
+                < self.steps.clamp_max(self.config.record_visited)[:, :, None],
             )
         return TensorDict(fields, batch_size=[b], device=self.device)
 

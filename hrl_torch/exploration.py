@@ -1,8 +1,10 @@
 """Exploration over masked action values: greedy, epsilon-greedy and Boltzmann, with schedules.
 
-Each strategy maps action values ``q [B, A]``, an availability mask ``[B, A]`` and a
-``BatchRNG`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that choice is greedy
-(the flag the average-reward learners use to update their gains only after non-random actions).
+Each strategy maps action values ``q [B, A]``, an availability mask ``[B, A]`` and a block of
+uniforms ``u [B, A + 2]`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that
+choice is greedy (the flag the average-reward learners use to update their gains only after
+non-random actions). Taking pre-drawn uniforms keeps the random stream of a row independent of
+how many other rows needed a decision.
 Schedules are functions of the learner's env-step count, so every learner of a population sees
 the same exploration rate at the same point of its own training.
 """
@@ -13,8 +15,6 @@ import math
 from dataclasses import dataclass
 
 import torch
-
-from hrl_torch.rng import BatchRNG
 
 _TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
 
@@ -78,15 +78,19 @@ def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     return (available.cumsum(-1) <= k.unsqueeze(-1)).sum(-1).clamp_max(available.shape[-1] - 1)
 
 
+def uniforms_needed(n_children: int) -> int:
+    """Width of the uniform block every strategy's ``select`` takes."""
+    return n_children + 2
+
+
 class Greedy:
     """Always the best available child (random among exact ties)."""
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice [B], greedy [B])``."""
-        noise = rng.uniform(q.shape[-1]) * _TIE_NOISE
-        choice = masked_argmax(q + noise, available)
+        choice = masked_argmax(q + u[:, : q.shape[-1]] * _TIE_NOISE, available)
         return choice, torch.ones_like(choice, dtype=torch.bool)
 
 
@@ -97,12 +101,13 @@ class EpsilonGreedy:
         self.epsilon = as_schedule(epsilon)
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice [B], greedy [B])``; a random pick that equals the greedy one counts."""
-        greedy_choice, _ = Greedy().select(q, available, rng, step)
-        explore = rng.uniform() < self.epsilon(step)
-        random_choice = uniform_choice(available, rng.uniform())
+        a = q.shape[-1]
+        greedy_choice, _ = Greedy().select(q, available, u, step)
+        explore = u[:, a] < self.epsilon(step)
+        random_choice = uniform_choice(available, u[:, a + 1])
         choice = torch.where(explore, random_choice, greedy_choice)
         return choice, choice == greedy_choice
 
@@ -114,16 +119,17 @@ class Boltzmann:
         self.temperature = as_schedule(temperature)
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, rng: BatchRNG, step: int
+        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice [B], greedy [B])`` sampled by inverse CDF."""
         temp = max(self.temperature(step), 1e-8)
         logits = torch.where(available, q / temp, torch.full_like(q, -math.inf))
         probs = torch.softmax(logits, dim=-1)
-        u = rng.uniform().unsqueeze(-1)
-        choice = (probs.cumsum(-1) <= u).sum(-1).clamp_max(q.shape[-1] - 1)
-        choice = torch.where(available.gather(-1, choice[:, None]).squeeze(-1), choice,
-                             masked_argmax(q, available))
+        pick = u[:, q.shape[-1], None]
+        choice = (probs.cumsum(-1) <= pick).sum(-1).clamp_max(q.shape[-1] - 1)
+        choice = torch.where(
+            available.gather(-1, choice[:, None]).squeeze(-1), choice, masked_argmax(q, available)
+        )
         return choice, choice == masked_argmax(q, available)
 
 

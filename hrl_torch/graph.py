@@ -61,7 +61,8 @@ class Subtask(nn.Module):
         initiable: ObsFn | None = None,
         child_mask: ObsFn | None = None,
         pseudo_reward: ObsFn | None = None,
-        shaping_reward: Callable[[TensorDict, torch.Tensor, TensorDict], torch.Tensor] | None = None,
+        shaping_reward: Callable[[TensorDict, torch.Tensor, TensorDict], torch.Tensor]
+        | None = None,
     ) -> None:
         super().__init__()
         self.name = name
@@ -81,7 +82,9 @@ class Subtask(nn.Module):
         if self._fns["abstract"] is not None:
             return self._fns["abstract"](obs)
         if self.n_states != 1:
-            raise GraphError(f"subtask {self.name!r} has n_states={self.n_states} but no abstract()")
+            raise GraphError(
+                f"subtask {self.name!r} has n_states={self.n_states} but no abstract()"
+            )
         b, device = _batch(obs)
         return torch.zeros(b, dtype=torch.long, device=device)
 
@@ -127,6 +130,7 @@ class Subtask(nn.Module):
         return overridden or given
 
     def extra_repr(self) -> str:
+        """Shown by ``print(module)``."""
         return f"name={self.name!r}, children={list(self.children_names)}, n_states={self.n_states}"
 
 
@@ -157,7 +161,9 @@ class Primitive(nn.Module):
         if self._abstract is not None:
             return self._abstract(obs)
         if self.n_states != 1:
-            raise GraphError(f"primitive {self.name!r} has n_states={self.n_states} but no abstract")
+            raise GraphError(
+                f"primitive {self.name!r} has n_states={self.n_states} but no abstract"
+            )
         b, device = _batch(obs)
         return torch.zeros(b, dtype=torch.long, device=device)
 
@@ -166,6 +172,7 @@ class Primitive(nn.Module):
         return False
 
     def extra_repr(self) -> str:
+        """Shown by ``print(module)``."""
         return f"name={self.name!r}, action={self.action}, n_states={self.n_states}"
 
 
@@ -176,9 +183,9 @@ Node = Subtask | Primitive
 class StepContext:
     """What the graph knows about one batch of observations, computed once per step.
 
-    Shapes: ``learner`` ``[B]`` (learner of each row), ``abstract`` ``[B, n_nodes]`` long, ``terminated`` ``[B, n_nodes]`` bool,
-    ``available`` ``[B, n_nodes, max_children]`` bool. Learners add their own per-node values
-    to ``values`` (e.g. ``V`` ``[B, n_tables]``).
+    Shapes: ``learner`` ``[B]`` (learner of each row), ``abstract`` ``[B, n_nodes]`` long,
+    ``terminated`` ``[B, n_nodes]`` bool, ``available`` ``[B, n_nodes, max_children]`` bool.
+    Learners add their own per-node values to ``values`` (e.g. ``V`` ``[B, n_tables]``).
     """
 
     obs: TensorDict
@@ -282,7 +289,12 @@ class TaskGraph(nn.Module):
         for k in range(n):
             node_height(k)
         # unroll the DAG into instances (paths from the root), breadth first
-        inst_node, inst_parent, inst_slot, inst_depth = [self.index[self.root_name]], [-1], [-1], [0]
+        inst_node, inst_parent, inst_slot, inst_depth = (
+            [self.index[self.root_name]],
+            [-1],
+            [-1],
+            [0],
+        )
         head = 0
         while head < len(inst_node):
             node = self.nodes[inst_node[head]]
@@ -315,7 +327,9 @@ class TaskGraph(nn.Module):
             persistent=False,
         )
         self.register_buffer(
-            "node_n_states", torch.tensor([x.n_states for x in self.nodes], **as_long), persistent=False
+            "node_n_states",
+            torch.tensor([x.n_states for x in self.nodes], **as_long),
+            persistent=False,
         )
         self.register_buffer(
             "node_action",

@@ -64,7 +64,9 @@ class BatchRNG:
             device=self.device,
         )
         local = torch.arange(envs_per_learner, dtype=torch.int64, device=self.device)
-        self._row_key = mix32(seed_keys.repeat_interleave(envs_per_learner) ^ local.repeat(len(seeds)))
+        self._row_key = mix32(
+            seed_keys.repeat_interleave(envs_per_learner) ^ local.repeat(len(seeds))
+        )
         self.counter = 0
 
     @property

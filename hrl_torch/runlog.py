@@ -4,7 +4,7 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
 
     tb/seed_<s>/      TensorBoard events, one run per seed (tags ``charts/``, ``hrl/<subtask>/``,
                       ``losses/<subtask>/``, ``perf/``; hyperparameters once as text)
-    progress.csv      one row per (logged step, seed): step, seed, metric columns
+    progress.csv      long format, one row per (step, seed, metric): step,seed,metric,value
     <metric>.png      mean and 95% interval over seeds of each curve metric
     summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
     checkpoint.pt     the latest checkpoint (when checkpointing is on)
@@ -61,30 +61,22 @@ class RunLogger:
                 self.writers.append(w)
         (self.run_dir / "hparams.json").write_text(json.dumps(hparams, indent=2, default=str))
         self.csv_path = self.run_dir / "progress.csv"
-        self._columns: list[str] | None = None
-        if self.csv_path.exists():  # resumed run: keep appending with the same columns
-            with open(self.csv_path) as f:
-                header = f.readline().strip()
-            self._columns = header.split(",") if header else None
+        if not self.csv_path.exists():
+            self.csv_path.write_text("step,seed,metric,value\n")
 
     def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
         """Log ``{tag: [value per seed]}`` at env step ``step`` (NaN values are skipped)."""
-        for k, w in enumerate(self.writers):
-            for tag, values in per_seed.items():
+        rows = []
+        for tag, values in per_seed.items():
+            for k, seed in enumerate(self.seeds):
                 v = float(values[k])
-                if not math.isnan(v):
-                    w.add_scalar(tag, v, step)
-        columns = sorted(per_seed)
-        new_file = self._columns is None
-        if new_file:
-            self._columns = columns
+                if math.isnan(v):
+                    continue
+                rows.append((step, seed, tag, f"{v:.6g}"))
+                if self.writers:
+                    self.writers[k].add_scalar(tag, v, step)
         with open(self.csv_path, "a", newline="") as f:
-            writer = csv.writer(f)
-            if new_file:
-                writer.writerow(["step", "seed", *self._columns])
-            for k, s in enumerate(self.seeds):
-                row = [per_seed[c][k] if c in per_seed else "" for c in self._columns]
-                writer.writerow([step, s, *[_fmt(v) for v in row]])
+            csv.writer(f).writerows(rows)
 
     def close(self) -> None:
         """Flush TensorBoard files."""
@@ -99,12 +91,6 @@ class RunLogger:
         return path
 
 
-def _fmt(v) -> str:
-    if v == "" or v is None:
-        return ""
-    return f"{float(v):.6g}"
-
-
 def _json_default(x):
     if isinstance(x, np.generic):
         return x.item()
@@ -113,24 +99,47 @@ def _json_default(x):
 
 def read_curves(csv_path: Path, metric: str) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """Steps and ``{seed: values}`` of one metric from a progress CSV (missing -> NaN)."""
-    steps: list[int] = []
     values: dict[int, dict[int, float]] = {}
     with open(csv_path) as f:
         for row in csv.DictReader(f):
-            v = row.get(metric, "")
-            step, seed = int(float(row["step"])), int(float(row["seed"]))
-            if step not in steps:
-                steps.append(step)
-            values.setdefault(seed, {})[step] = float(v) if v not in ("", None) else math.nan
-    grid = np.array(sorted(steps))
+            if row["metric"] == metric:
+                values.setdefault(int(row["seed"]), {})[int(row["step"])] = float(row["value"])
+    grid = np.array(sorted({step for d in values.values() for step in d}))
     return grid, {s: np.array([d.get(t, math.nan) for t in grid]) for s, d in values.items()}
 
 
 # two-sided 95% quantiles of Student's t for 1..30 degrees of freedom
 _T975 = (
-    12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
-    2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
-    2.052, 2.048, 2.045, 2.042,
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
 )
 
 
@@ -153,7 +162,10 @@ def mean_ci95(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plot_curves(
-    csv_path: Path, metrics: Sequence[str], out_dir: Path, title: str = "",
+    csv_path: Path,
+    metrics: Sequence[str],
+    out_dir: Path,
+    title: str = "",
     reference: dict[str, float] | None = None,
 ) -> list[Path]:
     """One PNG per metric: mean over seeds with a shaded 95% interval (``reference`` lines)."""

@@ -51,9 +51,7 @@ class TableLayout(nn.Module):
             "table_n_children", graph.node_n_children[table_node], persistent=False
         )
         height = graph.node_height[table_node]
-        self.groups = [
-            (height == h).nonzero().squeeze(1) for h in range(int(height.max()) + 1)
-        ]
+        self.groups = [(height == h).nonzero().squeeze(1) for h in range(int(height.max()) + 1)]
         self.n_tables = int(table_node.shape[0])
         self.max_children = graph.max_children
 
@@ -119,7 +117,10 @@ class TableBank(nn.Module):
         return self.data[learner, start : start + n].view(-1, n_cols)
 
     def update(
-        self, flat_index: torch.Tensor, target: torch.Tensor, alpha: torch.Tensor | float,
+        self,
+        flat_index: torch.Tensor,
+        target: torch.Tensor,
+        alpha: torch.Tensor | float,
         mask: torch.Tensor,
     ) -> None:
         """Move entries toward their targets: ``W <- (1-a)^n W + (1-(1-a)^n) mean(target)``.

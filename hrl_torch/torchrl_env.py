@@ -34,28 +34,41 @@ class TorchRLEnv(EnvBase):
             low_t = torch.tensor(low, dtype=torch.float32)
             high_t = torch.tensor(high, dtype=torch.float32)
             obs[k] = Bounded(
-                low_t.expand(b, *low_t.shape), high_t.expand(b, *high_t.shape),
-                shape=(b, *low_t.shape), device=env.device,
+                low_t.expand(b, *low_t.shape),
+                high_t.expand(b, *high_t.shape),
+                shape=(b, *low_t.shape),
+                device=env.device,
             )
         obs["duration"] = Unbounded(shape=(b,), dtype=torch.float32, device=env.device)
         self.observation_spec = Composite(obs, shape=(b,), device=env.device)
         if env.n_actions is not None:
-            self.action_spec = Categorical(env.n_actions, shape=(b,), dtype=torch.long,
-                                           device=env.device)
+            self.action_spec = Categorical(
+                env.n_actions, shape=(b,), dtype=torch.long, device=env.device
+            )
         else:
             low, high = (torch.tensor(x, dtype=torch.float32) for x in env.action_bounds)
-            self.action_spec = Bounded(low.expand(b, *low.shape), high.expand(b, *high.shape),
-                                       shape=(b, *low.shape), device=env.device)
+            self.action_spec = Bounded(
+                low.expand(b, *low.shape),
+                high.expand(b, *high.shape),
+                shape=(b, *low.shape),
+                device=env.device,
+            )
         self.reward_spec = Unbounded(shape=(b, 1), device=env.device)
         flag = dict(n=2, shape=(b, 1), dtype=torch.bool, device=env.device)
         self.done_spec = Composite(
-            done=Categorical(**flag), terminated=Categorical(**flag), truncated=Categorical(**flag),
-            shape=(b,), device=env.device,
+            done=Categorical(**flag),
+            terminated=Categorical(**flag),
+            truncated=Categorical(**flag),
+            shape=(b,),
+            device=env.device,
         )
 
     def _fields(self, duration: torch.Tensor) -> dict:
-        fields = {k: v for k, v in self.env._observe().items()
-                  if k in self.env.observation_sizes or k in self.env.observation_bounds}
+        fields = {
+            k: v
+            for k, v in self.env._observe().items()
+            if k in self.env.observation_sizes or k in self.env.observation_bounds
+        }
         fields["duration"] = duration
         return fields
 
@@ -76,12 +89,16 @@ class TorchRLEnv(EnvBase):
         reward, duration, terminated = self.env._step_all(action)
         self.env.elapsed += 1
         limit = self.env.max_episode_steps
-        truncated = (self.env.elapsed >= limit) if limit is not None else torch.zeros_like(terminated)
+        truncated = (
+            (self.env.elapsed >= limit) if limit is not None else torch.zeros_like(terminated)
+        )
         truncated = truncated & ~terminated
         out = self._fields(duration.float())
         out.update(
-            reward=reward.float().unsqueeze(-1), terminated=terminated.unsqueeze(-1),
-            truncated=truncated.unsqueeze(-1), done=(terminated | truncated).unsqueeze(-1),
+            reward=reward.float().unsqueeze(-1),
+            terminated=terminated.unsqueeze(-1),
+            truncated=truncated.unsqueeze(-1),
+            done=(terminated | truncated).unsqueeze(-1),
         )
         return TensorDict(out, batch_size=self.batch_size, device=self.device)
 

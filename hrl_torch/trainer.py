@@ -134,8 +134,14 @@ class Trainer:
         """Train until ``steps`` env steps per learner (default ``config.steps``)."""
         cfg = self.config
         total = cfg.steps if steps is None else steps
-        bar = tqdm(total=total, initial=self.step, unit="step", disable=not cfg.progress,
-                   desc="train", dynamic_ncols=True)
+        bar = tqdm(
+            total=total,
+            initial=self.step,
+            unit="step",
+            disable=not cfg.progress,
+            desc="train",
+            dynamic_ncols=True,
+        )
         while self.step < total:
             t0 = time.perf_counter()
             self.train_step()
@@ -159,15 +165,33 @@ class Trainer:
         if run_dir is not None:
             self.save(f"{run_dir}/checkpoint.pt")
         sps = self.step * self.P / max(self.train_seconds, 1e-9)
-        return TrainResult(final, success, list(self.first_hit), self.step, self.train_seconds,
-                           sps, list(self.curve))
+        return TrainResult(
+            final,
+            success,
+            list(self.first_hit),
+            self.step,
+            self.train_seconds,
+            sps,
+            list(self.curve),
+        )
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Greedy episodes on ``eval_env``: mean return and success rate per learner ``[P]``."""
+        """Greedy episodes on ``eval_env``: mean return and success rate per learner ``[P]``.
+
+        Every evaluation plays the same episodes (the eval env's and the tie-breaking random
+        streams restart), so evaluation is a function of the tables alone; with one eval seed
+        for all learners (as ``run_experiment`` sets up) every learner meets the same episodes.
+        """
         env, cfg = self.eval_env, self.config
+        if hasattr(env, "rng"):
+            env.rng.load_state_dict({"counter": 0})
+        self._eval_rng().load_state_dict({"counter": 0})
         executor = HierarchicalExecutor(
-            self.graph, env.batch_size, env.envs_per_learner, self.learner.gamma,
+            self.graph,
+            env.batch_size,
+            env.envs_per_learner,
+            self.learner.gamma,
             self.executor_config,
         )
         policy = ValuePolicy(self.learner, Greedy(), self._eval_rng())
@@ -211,8 +235,9 @@ class Trainer:
             if threshold is not None and self.first_hit[p] is None and v >= threshold:
                 self.first_hit[p] = self.step
         if self.logger:
-            self.logger.log(self.step, {"charts/eval_return": values,
-                                        "charts/eval_success": self._last_success})
+            self.logger.log(
+                self.step, {"charts/eval_return": values, "charts/eval_success": self._last_success}
+            )
 
     def _log_training(self) -> None:
         if not self.logger:
@@ -314,8 +339,9 @@ class _EpisodeTracker:
         self.ret += td["reward"].cpu() * real
         self.length += real.float()
         ended = ((td["terminated"] | td["truncated"]).cpu() & real).float()
-        values = torch.stack([ended, self.ret * ended, self.length * ended,
-                              td["terminated"].cpu().float() * ended])
+        values = torch.stack(
+            [ended, self.ret * ended, self.length * ended, td["terminated"].cpu().float() * ended]
+        )
         self.sums.index_add_(1, self.rows, values)
         self.ret *= 1 - ended
         self.length *= 1 - ended

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from hrl_torch.exploration import Exploration, Schedule, as_schedule
+from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.rng import BatchRNG
 from hrl_torch.tables import TableBank, TableLayout
@@ -101,7 +101,9 @@ class TabularLearner(Learner):
     ) -> torch.Tensor:
         """Rows ``[B, n, A]`` of ``bank`` for tables ``[n]`` at ``ctx``; unavailable read 0."""
         idx = bank.row_index(
-            ctx.learner[:, None], tables[None, :], self.table_states(ctx, tables),
+            ctx.learner[:, None],
+            tables[None, :],
+            self.table_states(ctx, tables),
             self.layout.max_children,
         )
         return bank.read(idx, available)
@@ -109,6 +111,10 @@ class TabularLearner(Learner):
 
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.
+
+    Every step draws one block of uniforms ``[B, levels, A + 2]`` up front (``new_step``), and
+    the ``k``-th push of a step reads slice ``k``: a row's random stream never depends on how
+    many pushes other rows needed, so a population equals separate runs.
 
     Args:
         learner: provides ``action_values``.
@@ -120,10 +126,17 @@ class ValuePolicy:
         self.learner = learner
         self.exploration = exploration
         self.rng = rng
+        self._u: torch.Tensor | None = None
+
+    def new_step(self) -> None:
+        """Draw this step's uniforms for every row and push level."""
+        g = self.learner.graph
+        width = uniforms_needed(g.max_children)
+        self._u = self.rng.uniform(g.max_levels * width).view(-1, g.max_levels, width)
 
     def select(
-        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int
+        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(child slot [B], greedy flag [B])``."""
+        """Return ``(child slot [B], greedy flag [B])`` for the ``push``-th push of the step."""
         q = self.learner.action_values(inst, ctx)
-        return self.exploration.select(q, available, self.rng, step)
+        return self.exploration.select(q, available, self._u[:, push], step)

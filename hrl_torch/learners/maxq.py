@@ -112,8 +112,12 @@ class MaxQLearner(TabularLearner):
         v_next = ctx.values["V"].gather(1, table)
         v_next_int = ctx.values["V_int"].gather(1, table)
         target, target_int = self.targets(
-            self.gamma ** batch["duration"], batch["internal_reward"], terminal,
-            batch["pseudo_reward"], v_next, v_next_int,
+            self.gamma ** batch["duration"],
+            batch["internal_reward"],
+            terminal,
+            batch["pseudo_reward"],
+            v_next,
+            v_next_int,
         )
         idx = self.C.index(learner, table, batch["state"], batch["child"])
         self.record_td(learner, batch["node"], target_int - self.C_int.read(idx, valid), valid)
@@ -125,11 +129,17 @@ class MaxQLearner(TabularLearner):
             late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
             remaining = batch["duration"][..., None] - batch["visited_time"]
             ext, internal = self.targets(
-                self.gamma ** remaining, torch.zeros_like(remaining), terminal[..., None],
-                batch["pseudo_reward"][..., None], v_next[..., None], v_next_int[..., None],
+                self.gamma**remaining,
+                torch.zeros_like(remaining),
+                terminal[..., None],
+                batch["pseudo_reward"][..., None],
+                v_next[..., None],
+                v_next_int[..., None],
             )
             vidx = self.C.index(
-                learner[..., None], table[..., None], batch["visited_state"],
+                learner[..., None],
+                table[..., None],
+                batch["visited_state"],
                 batch["child"][..., None],
             )
             self.C.update(vidx.reshape(-1), ext.reshape(-1), alpha, late.reshape(-1))

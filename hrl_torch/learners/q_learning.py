@@ -64,7 +64,9 @@ class SMDPQLearner(TabularLearner):
         terminal = batch["terminal"]
         valid = batch["valid"] & (batch["child_done"] | terminal)
         discount = self.gamma ** batch["duration"]
-        continuation = torch.where(terminal, batch["pseudo_reward"], ctx.values["V"].gather(1, table))
+        continuation = torch.where(
+            terminal, batch["pseudo_reward"], ctx.values["V"].gather(1, table)
+        )
         target = batch["discounted_reward"] + batch["internal_reward"] + discount * continuation
         idx = self.Q.index(learner, table, batch["state"], batch["child"])
         self.record_td(learner, batch["node"], target - self.Q.read(idx, valid), valid)

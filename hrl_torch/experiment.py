@@ -1,0 +1,217 @@
+"""Domains, algorithms and one function that runs an experiment into a run folder.
+
+A domain module (in ``agents/``) describes itself with a ``DomainSpec``: how to build its env
+for a list of seeds, and per algorithm an ``AlgoSpec`` (graph, learner, exploration, default
+budget). ``hrl_torch.registry`` finds domains by name; ``run_experiment`` is what the CLI and the
+experiment scripts call.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import torch
+
+from hrl_torch.executor import ExecutorConfig
+from hrl_torch.exploration import Exploration
+from hrl_torch.graph import TaskGraph
+from hrl_torch.learners.base import Learner
+from hrl_torch.runlog import RunLogger, make_run_dir, plot_curves
+from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
+
+EnvFactory = Callable[[Sequence[int], int, str], object]
+
+
+@dataclass
+class AlgoSpec:
+    """One algorithm on one domain.
+
+    Attributes:
+        make_graph: builds the task graph (a flat graph for flat learners).
+        make_learner: ``(graph, n_learners) -> Learner``.
+        make_exploration: ``(train_config) -> Exploration`` (schedules may read the budget).
+        train: default training options.
+        envs_per_learner: default ``E``.
+        executor: executor options.
+        description: one line for ``hrl-torch list``.
+    """
+
+    make_graph: Callable[[], TaskGraph]
+    make_learner: Callable[[TaskGraph, int], Learner]
+    make_exploration: Callable[[TrainConfig], Exploration]
+    train: TrainConfig = field(default_factory=TrainConfig)
+    envs_per_learner: int = 64
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
+    description: str = ""
+
+
+@dataclass
+class DomainSpec:
+    """A domain: its env factory, backends, algorithms and reference values.
+
+    Attributes:
+        name: CLI name (``hrl-torch train NAME``).
+        make_env: ``(seeds, envs_per_learner, backend) -> env``.
+        algos: algorithm name -> spec.
+        backends: env backends ``make_env`` accepts (``"torch"`` first).
+        eval_seed: seed of the common evaluation episodes (the same for every learner).
+        reference: named reference values drawn on the plots (e.g. the optimal return).
+        description: one line for ``hrl-torch list``.
+    """
+
+    name: str
+    make_env: EnvFactory
+    algos: dict[str, AlgoSpec]
+    backends: tuple[str, ...] = ("torch",)
+    eval_seed: int = 1_000_003
+    reference: dict[str, float] = field(default_factory=dict)
+    description: str = ""
+
+
+@dataclass
+class RunOptions:
+    """What the CLI lets a user change.
+
+    Attributes:
+        seeds: seeds of the learners (one learner each, run as one population).
+        backend: env backend (``torch`` or, where offered, ``gymnasium``).
+        envs_per_learner: ``E`` (``None``: the algorithm's default).
+        steps / eval_every / eval_episodes / threshold / checkpoint_every: override the
+            algorithm's ``TrainConfig`` (``None``: keep).
+        out: parent folder of run folders.
+        resume: checkpoint to continue from.
+        progress: show a progress bar.
+        tensorboard: write TensorBoard events.
+        device: torch device of envs and tables.
+    """
+
+    seeds: Sequence[int] = (0,)
+    backend: str = "torch"
+    envs_per_learner: int | None = None
+    steps: int | None = None
+    eval_every: int | None = None
+    eval_episodes: int | None = None
+    threshold: float | None = None
+    checkpoint_every: int | None = None
+    out: str = "runs"
+    resume: str | None = None
+    progress: bool = True
+    tensorboard: bool = True
+
+
+def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
+    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
+    if algo not in domain.algos:
+        raise KeyError(
+            f"{domain.name!r} has no algorithm {algo!r}; choose from {sorted(domain.algos)}"
+        )
+    if opts.backend not in domain.backends:
+        raise KeyError(
+            f"{domain.name!r} has no backend {opts.backend!r}; choose from {domain.backends}"
+        )
+    spec = domain.algos[algo]
+    changes = {
+        k: getattr(opts, k)
+        for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
+        if getattr(opts, k) is not None
+    }
+    config = replace(spec.train, progress=opts.progress, **changes)
+    seeds = list(opts.seeds)
+    n_envs = opts.envs_per_learner or spec.envs_per_learner
+    env = domain.make_env(seeds, n_envs, opts.backend)
+    eval_env = None
+    if config.eval_episodes:
+        eval_env = domain.make_env(
+            [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend
+        )
+    graph = spec.make_graph()
+    learner = spec.make_learner(graph, len(seeds))
+    return Trainer(
+        env, graph, learner, spec.make_exploration(config), config, eval_env, spec.executor, logger
+    )
+
+
+def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Path, dict]:
+    """Train ``algo`` on ``domain`` for every seed at once; write the run folder.
+
+    Returns the run folder and the summary written to its ``summary.json``.
+    """
+    torch.set_num_threads(1)
+    run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
+    spec = domain.algos[algo]
+    hparams = hparams_of(
+        domain=domain.name,
+        algo=algo,
+        options=opts,
+        train=spec.train,
+        executor=spec.executor,
+        envs_per_learner=spec.envs_per_learner,
+    )
+    logger = RunLogger(run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard)
+    trainer = build_trainer(domain, algo, opts, logger)
+    if opts.resume:
+        trainer.load(opts.resume)
+    start = time.perf_counter()
+    result = trainer.train(run_dir=run_dir)
+    wall = time.perf_counter() - start
+    logger.close()
+    plots = plot_curves(
+        run_dir / "progress.csv",
+        ["charts/eval_return", "charts/episode_return"],
+        run_dir,
+        title=f"{domain.name} / {algo}",
+        reference=domain.reference,
+    )
+    summary = {
+        "domain": domain.name,
+        "algo": algo,
+        "backend": opts.backend,
+        "seeds": list(opts.seeds),
+        "envs_per_learner": trainer.E,
+        "env_steps_per_learner": result.env_steps_per_learner,
+        "train_seconds": round(result.train_seconds, 3),
+        "wall_seconds": round(wall, 3),
+        "env_steps_per_second": round(result.env_steps_per_second, 1),
+        "threshold": trainer.config.threshold,
+        "per_seed": [
+            {
+                "seed": s,
+                "final_eval_return": result.final_eval[k],
+                "final_eval_success": result.final_success[k],
+                "steps_to_threshold": result.steps_to_threshold[k],
+                "env_steps": result.env_steps_per_learner,
+                # all seeds train together: each seed's share of the population's time
+                "wall_seconds": round(result.train_seconds, 3),
+                "env_steps_per_second": round(result.env_steps_per_second / len(opts.seeds), 1),
+            }
+            for k, s in enumerate(opts.seeds)
+        ],
+        "plots": [p.name for p in plots],
+    }
+    logger.write_summary(summary)
+    return run_dir, summary
+
+
+def format_summary(summary: dict) -> str:
+    """A short human-readable digest of a summary."""
+    rows = [
+        f"{summary['domain']} / {summary['algo']} ({summary['backend']}): "
+        f"{len(summary['seeds'])} seeds x {summary['envs_per_learner']} envs, "
+        f"{summary['env_steps_per_learner']} env steps per seed in {summary['train_seconds']} s "
+        f"({summary['env_steps_per_second']:.0f} env steps/s)"
+    ]
+    for r in summary["per_seed"]:
+        rows.append(
+            f"  seed {r['seed']}: final eval return {r['final_eval_return']:.2f}, "
+            f"success {r['final_eval_success']:.2f}, steps to threshold {r['steps_to_threshold']}"
+        )
+    return "\n".join(rows)
+
+
+def load_summary(run_dir: str | Path) -> dict:
+    """Read a run folder's ``summary.json``."""
+    return json.loads((Path(run_dir) / "summary.json").read_text())

@@ -1,0 +1,156 @@
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
+from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import MaxQLearner, ValuePolicy
+from hrl_torch.rng import BatchRNG
+from tests.helpers import random_hierarchy, random_table_env
+
+
+def run_checked(graph, env, steps, check_step):
+    learner = MaxQLearner(graph, env.n_learners)
+    policy = ValuePolicy(
+        learner, EpsilonGreedy(0.5), BatchRNG(env.seeds, env.envs_per_learner, "x")
+    )
+    ex = HierarchicalExecutor(
+        graph,
+        env.batch_size,
+        env.envs_per_learner,
+        config=ExecutorConfig(max_subtask_steps=50, on_timeout="abort"),
+    )
+    rows = env.learner_of_row()
+    ctx = graph.context(env.reset(), rows)
+    learner.evaluate(ctx)
+    ex.act(ctx, policy, 0)
+    for _ in range(steps):
+        before = (ex.stack.clone(), ex.top.clone())
+        td = env.step(ex._action)
+        ctx = graph.context(td, rows)
+        learner.evaluate(ctx)
+        batch = ex.observe(td, ctx)
+        check_step("observe", ex, ctx, td, batch, before)
+        learner.update(batch, ctx, 0)
+        ex.act(ctx, policy, 0)
+        check_step("act", ex, ctx, td, None, None)
+
+
+def check_invariants(graph):
+    def check(phase, ex, ctx, td, batch, before):
+        b_idx = torch.arange(ex.batch_size)
+        if phase == "act":
+            live = ex.top >= 0
+            assert ((ex.top + 1) <= graph.max_levels).all()
+            top_node = graph.inst_node[ex.stack[b_idx, ex.top.clamp_min(0)]]
+            # after pushing, a primitive is on top of every live stack
+            assert graph.node_is_primitive[top_node][live].all()
+            for b in live.nonzero().squeeze(1).tolist():
+                t = int(ex.top[b])
+                assert int(ex.stack[b, 0]) == 0
+                for k in range(t):
+                    inst = int(ex.stack[b, k])
+                    assert int(ex.stack[b, k + 1]) == int(graph.inst_children[inst, ex.child[b, k]])
+                    # no live subtask sits in its own terminal set
+                    assert not bool(ctx.terminated[b, graph.inst_node[inst]])
+            # empty stacks only for rows whose episode just ended
+            assert (live | ex.done).all()
+            return
+        stack, top = before
+        real = ~td["is_init"]
+        for b in real.nonzero().squeeze(1).tolist():
+            t = int(top[b])
+            nodes = graph.inst_node[stack[b, : t + 1]]
+            own = ctx.terminated[b, nodes] | td["terminated"][b]
+            ends = own.clone()
+            ends[t] = True  # the primitive always completes
+            if bool(td["terminated"][b]) or bool(td["truncated"][b]):
+                ends[:] = True
+            first = int(ends.nonzero()[0])
+            # termination pops exactly the first terminated level and everything above it
+            assert int(ex.top[b]) == first - 1
+            emitted = batch["valid"][b].nonzero().squeeze(1).tolist()
+            assert emitted == list(range(max(first - 1, 0), t))
+            for lvl in emitted:
+                assert bool(batch["terminal"][b, lvl]) == bool(own[lvl])
+                assert bool(batch["child_done"][b, lvl]) == bool(own[lvl + 1] or lvl + 1 == t)
+
+    return check
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n_subtasks=st.integers(1, 5),
+    n_states=st.integers(2, 12),
+    n_actions=st.integers(1, 4),
+    seed=st.integers(0, 10_000),
+)
+def test_executor_invariants_on_random_hierarchies(n_subtasks, n_states, n_actions, seed):
+    graph = random_hierarchy(n_subtasks, n_states, n_actions, seed)
+    env = random_table_env(
+        n_states, n_actions, seed, envs_per_learner=6, seeds=(seed, seed + 1), max_episode_steps=40
+    )
+    run_checked(graph, env, 60, check_invariants(graph))
+
+
+def test_runaway_subtask_raises_or_aborts():
+    # a subtask whose termination never holds
+    loop = Subtask("Loop", ["a0"], terminated=lambda o: o["observation"] < 0)
+    graph = TaskGraph("Root", [Subtask("Root", ["Loop"]), loop, Primitive("a0", 0)], n_actions=1)
+    env = random_table_env(5, 1, 0, terminal_frac=0.0, envs_per_learner=2)
+    learner = MaxQLearner(graph, 1)
+    policy = ValuePolicy(learner, EpsilonGreedy(0.1), BatchRNG([0], 2, "x"))
+    for mode in ("raise", "abort"):
+        ex = HierarchicalExecutor(
+            graph, 2, 2, config=ExecutorConfig(max_subtask_steps=7, on_timeout=mode)
+        )
+        ctx = graph.context(env.reset())
+        learner.evaluate(ctx)
+        ex.act(ctx, policy, 0)
+        if mode == "raise":
+            with pytest.raises(SubtaskTimeoutError, match="'Loop' ran 7 primitive steps"):
+                for _ in range(10):
+                    td = env.step(ex._action)
+                    ctx = graph.context(td)
+                    learner.evaluate(ctx)
+                    ex.observe(td, ctx)
+                    ex.act(ctx, policy, 0)
+        else:
+            calls = []
+            for _ in range(20):
+                td = env.step(ex._action)
+                ctx = graph.context(td)
+                learner.evaluate(ctx)
+                batch = ex.observe(td, ctx)
+                # the aborted Loop gives its parent no completed child
+                assert not (batch["valid"][:, 0] & batch["child_done"][:, 0]).any()
+                calls.append(int(ex.top.min()))
+                ex.act(ctx, policy, 0)
+            assert ex.stats.calls[0, graph.index["Loop"]] >= 4  # restarted after each abort
+
+
+def test_no_available_child_is_a_clear_error():
+    dead = Subtask(
+        "Dead", ["a0"], child_mask=lambda o: torch.zeros(o.batch_size[0], 1, dtype=torch.bool)
+    )
+    graph = TaskGraph("Root", [Subtask("Root", ["Dead"]), dead, Primitive("a0", 0)], n_actions=1)
+    env = random_table_env(4, 1, 0, terminal_frac=0.0)
+    learner = MaxQLearner(graph, 1)
+    policy = ValuePolicy(learner, EpsilonGreedy(0.1), BatchRNG([0], 1, "x"))
+    ex = HierarchicalExecutor(graph, 1, 1)
+    ctx = graph.context(env.reset())
+    learner.evaluate(ctx)
+    from hrl_torch.graph import GraphError
+
+    with pytest.raises(GraphError, match="'Dead' has no available child"):
+        ex.act(ctx, policy, 0)
+
+
+def test_nan_reward_is_a_clear_error():
+    graph = random_hierarchy(2, 4, 2, 0)
+    env = random_table_env(4, 2, 0, terminal_frac=0.0)
+    env.reward_table[:] = float("nan")
+    with pytest.raises(ValueError, match="NaN reward"):
+        run_checked(graph, env, 3, lambda *a: None)

@@ -1,0 +1,99 @@
+import pytest
+import torch
+from tensordict import TensorDict
+
+from agents.taxi import taxi_hierarchy
+from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+
+
+def obs(b=3, **fields):
+    return TensorDict({k: torch.as_tensor(v) for k, v in fields.items()}, batch_size=[b])
+
+
+def test_cycle_is_rejected():
+    nodes = [
+        Subtask("Root", ["A"]),
+        Subtask("A", ["B"]),
+        Subtask("B", ["A", "go"]),
+        Primitive("go", 0),
+    ]
+    with pytest.raises(GraphError, match="cycle: A -> B -> A"):
+        TaskGraph("Root", nodes, n_actions=1)
+
+
+def test_self_loop_is_rejected():
+    with pytest.raises(GraphError, match="cycle"):
+        TaskGraph("Root", [Subtask("Root", ["Root", "go"]), Primitive("go", 0)], n_actions=1)
+
+
+def test_unknown_child_is_rejected():
+    with pytest.raises(GraphError, match=r"unknown children \['jump'\]"):
+        TaskGraph("Root", [Subtask("Root", ["go", "jump"]), Primitive("go", 0)], n_actions=1)
+
+
+def test_primitive_outside_action_space_is_rejected():
+    with pytest.raises(GraphError, match=r"action 6, outside the env's action space \[0, 6\)"):
+        TaskGraph("Root", [Subtask("Root", ["go"]), Primitive("go", 6)], n_actions=6)
+
+
+def test_subtask_without_children_is_rejected():
+    nodes = [Subtask("Root", ["A", "go"]), Subtask("A", []), Primitive("go", 0)]
+    with pytest.raises(GraphError, match="'A' has no children"):
+        TaskGraph("Root", nodes, n_actions=1)
+
+
+def test_duplicate_names_and_bad_root_are_rejected():
+    with pytest.raises(GraphError, match="duplicate"):
+        TaskGraph("Root", [Subtask("Root", ["go"]), Primitive("go", 0), Primitive("go", 0)])
+    with pytest.raises(GraphError, match="not a node"):
+        TaskGraph("Top", [Subtask("Root", ["go"]), Primitive("go", 0)])
+    with pytest.raises(GraphError, match="must be a subtask"):
+        TaskGraph("go", [Subtask("Root", ["go"]), Primitive("go", 0)])
+
+
+def test_abstraction_out_of_range_is_a_clear_error():
+    root = Subtask("Root", ["go"], n_states=4, abstract=lambda o: o["x"])
+    graph = TaskGraph("Root", [root, Primitive("go", 0)], n_actions=1)
+    graph.context(obs(x=[0, 3, 2]))  # in range: fine
+    with pytest.raises(
+        GraphError, match=r"'Root'.abstract returned 4, outside \[0, 4\) \(env row 1\)"
+    ):
+        graph.context(obs(x=[0, 4, 2]))
+    with pytest.raises(GraphError, match="returned -1"):
+        graph.context(obs(x=[-1, 0, 2]))
+
+
+def test_missing_abstraction_is_a_clear_error():
+    graph = TaskGraph("Root", [Subtask("Root", ["go"], n_states=3), Primitive("go", 0)], 1)
+    with pytest.raises(GraphError, match="no abstract"):
+        graph.context(obs(x=[0, 1, 2]))
+
+
+def test_taxi_instance_tree_shares_navigate():
+    g = taxi_hierarchy()
+    paths = [g.instance_path(k) for k in range(g.n_instances)]
+    assert "Root/Get/Navigate_R" in paths and "Root/Put/Navigate_R" in paths
+    assert sum(p.endswith("/Navigate_B") for p in paths) == 2  # one subtask, two contexts
+    assert g.max_levels == 4  # Root, Get/Put, Navigate, primitive
+    assert g.n_nodes == 13
+    # every instance's children are instances of its node's children, in slot order
+    for k in range(g.n_instances):
+        node = int(g.inst_node[k])
+        for slot, child in enumerate(g.inst_children[k].tolist()):
+            if child >= 0:
+                assert int(g.inst_node[child]) == int(g.node_children[node, slot])
+                assert int(g.inst_parent[child]) == k
+
+
+def test_availability_combines_mask_termination_and_initiation():
+    g = taxi_hierarchy()
+    # taxi at R (loc 0), passenger at R waiting, destination G
+    o = obs(1, taxi_loc=[0], passenger=[0], destination=[1], observation=[0])
+    ctx = g.context(o)
+    get = g.index["Get"]
+    # Navigate_R is masked in (bound to the passenger) but terminated (taxi already at R)
+    assert ctx.available[0, get].tolist()[:5] == [False, False, False, False, True]
+    root = g.index["Root"]
+    assert ctx.available[0, root, :2].tolist() == [True, False]  # Put: passenger not in taxi
+    assert bool(ctx.terminated[0, g.index["Navigate_R"]])
+    assert not bool(ctx.terminated[0, g.index["Navigate_G"]])
