@@ -131,6 +131,13 @@ def _epsilon(config: TrainConfig) -> EpsilonGreedy:
     return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
 
 
+# Pessimistic initial values (below every true completion value): estimates then rise toward
+# their targets and a wall-bump's completion, whose target is its own state's value, cannot
+# overtake the best move. Zero (optimistic) initial values make greedy policies relapse into
+# wall-bumping loops inside Navigate (docs/design.md, "Initial values and greedy loops").
+PESSIMISTIC_INIT = -20.0
+
+
 DOMAIN = DomainSpec(
     name="taxi",
     description="Dietterich's taxi (gymnasium Taxi-v4 dynamics)",
@@ -140,7 +147,7 @@ DOMAIN = DomainSpec(
     algos={
         "maxq-q": AlgoSpec(
             make_graph=taxi_hierarchy,
-            make_learner=lambda g, p: MaxQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
             make_exploration=_epsilon,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
@@ -148,7 +155,7 @@ DOMAIN = DomainSpec(
         ),
         "smdp-q": AlgoSpec(
             make_graph=taxi_hierarchy,
-            make_learner=lambda g, p: SMDPQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
             make_exploration=_epsilon,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
@@ -156,7 +163,7 @@ DOMAIN = DomainSpec(
         ),
         "q": AlgoSpec(
             make_graph=flat_graph,
-            make_learner=lambda g, p: SMDPQLearner(g, p, alpha=0.5, gamma=1.0),
+            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
             make_exploration=_epsilon,
             train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
             envs_per_learner=256,

@@ -161,6 +161,12 @@ class HierarchicalExecutor:
         self._action = torch.zeros(b, **long)
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
 
+    def reset(self) -> None:
+        """Empty every stack (all rows start at the root on the next ``act``)."""
+        self.top.fill_(-1)
+        self.stack.fill_(-1)
+        self.done.zero_()
+
     # ------------------------------------------------------------------ acting
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
         """Push children until a primitive is on top of every live stack; return actions ``[B]``.

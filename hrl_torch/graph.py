@@ -46,9 +46,13 @@ class Subtask(nn.Module):
         child_mask: ``obs -> [B, n_children] bool``, the state-dependent action set ``A_i(s)``.
         pseudo_reward: ``obs -> [B]``, internal reward on entering a terminal state (MAXQ).
         shaping_reward: ``(obs, action, next_obs) -> [B]``, internal reward per primitive step.
+        event_termination: the predicate marks an *event* of the last step (e.g. "a part was
+            delivered") rather than a terminal *state*: it ends a running invocation but does
+            not make the subtask unavailable, or worth zero, where it holds.
     """
 
     is_primitive = False
+    event_termination = False
 
     def __init__(
         self,
@@ -63,9 +67,12 @@ class Subtask(nn.Module):
         pseudo_reward: ObsFn | None = None,
         shaping_reward: Callable[[TensorDict, torch.Tensor, TensorDict], torch.Tensor]
         | None = None,
+        event_termination: bool | None = None,
     ) -> None:
         super().__init__()
         self.name = name
+        if event_termination is not None:
+            self.event_termination = bool(event_termination)
         self.children_names = tuple(children)
         self.n_states = int(n_states)
         self._fns = {
@@ -184,7 +191,10 @@ class StepContext:
     """What the graph knows about one batch of observations, computed once per step.
 
     Shapes: ``learner`` ``[B]`` (learner of each row), ``abstract`` ``[B, n_nodes]`` long,
-    ``terminated`` ``[B, n_nodes]`` bool, ``available`` ``[B, n_nodes, max_children]`` bool.
+    ``terminated`` ``[B, n_nodes]`` bool (the predicate: ends a running invocation),
+    ``blocked`` ``[B, n_nodes]`` bool (a terminal *state*: the node can neither start nor has
+    value here; ``terminated`` without the event-terminated nodes),
+    ``available`` ``[B, n_nodes, max_children]`` bool.
     Learners add their own per-node values to ``values`` (e.g. ``V`` ``[B, n_tables]``).
     """
 
@@ -192,6 +202,7 @@ class StepContext:
     learner: torch.Tensor
     abstract: torch.Tensor
     terminated: torch.Tensor
+    blocked: torch.Tensor
     available: torch.Tensor
     values: dict[str, torch.Tensor] = field(default_factory=dict)
 
@@ -337,6 +348,11 @@ class TaskGraph(nn.Module):
             persistent=False,
         )
         self.register_buffer("node_height", torch.tensor(height, **as_long), persistent=False)
+        self.register_buffer(
+            "node_event",
+            torch.tensor([bool(getattr(x, "event_termination", False)) for x in self.nodes]),
+            persistent=False,
+        )
         self.register_buffer("inst_node", torch.tensor(inst_node, **as_long), persistent=False)
         self.register_buffer("inst_parent", torch.tensor(inst_parent, **as_long), persistent=False)
         self.register_buffer("inst_depth", torch.tensor(inst_depth, **as_long), persistent=False)
@@ -402,7 +418,8 @@ class TaskGraph(nn.Module):
         initiable = torch.stack(
             [~false if x.is_primitive else x.initiable(obs).bool() for x in self.nodes], dim=1
         )
-        child_ok = initiable & ~terminated  # a child that would end at once is not available
+        blocked = terminated & ~self.node_event
+        child_ok = initiable & ~blocked  # a child that would end at once is not available
         available = child_ok[:, self.node_children.clamp_min(0)] & self.child_valid
         for k, x in enumerate(self.nodes):
             if x.is_primitive:
@@ -410,7 +427,7 @@ class TaskGraph(nn.Module):
             mask = x.child_mask(obs)
             if mask is not None:
                 available[:, k, : mask.shape[1]] &= mask.bool()
-        return StepContext(obs, learner, abstract, terminated, available)
+        return StepContext(obs, learner, abstract, terminated, blocked, available)
 
     def internal_rewards_at_termination(self, obs: TensorDict) -> torch.Tensor:
         """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``."""

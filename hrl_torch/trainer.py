@@ -112,6 +112,7 @@ class Trainer:
     # ------------------------------------------------------------------ stepping
     def _begin(self) -> None:
         obs = self.env.reset()
+        self.executor.reset()
         self.ctx = self.graph.context(obs, self.rows)
         self.learner.evaluate(self.ctx)
         self.action = self.executor.act(self.ctx, self.policy, self.step)
@@ -303,6 +304,8 @@ class Trainer:
             self._eval_rng().load_state_dict(state["eval_rng"])
         action = state["action"]
         self.action = None if action.numel() == 0 else action.clone()
+        if not state["env"]:  # an env that cannot be checkpointed (gymnasium): new episodes
+            self.action = None
         self.step = int(state["step"])
         self.train_seconds = float(state["train_seconds"])
         self.curve = [(int(s), [float(x) for x in v]) for s, v in state["curve"]]

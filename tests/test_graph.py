@@ -97,3 +97,17 @@ def test_availability_combines_mask_termination_and_initiation():
     assert ctx.available[0, root, :2].tolist() == [True, False]  # Put: passenger not in taxi
     assert bool(ctx.terminated[0, g.index["Navigate_R"]])
     assert not bool(ctx.terminated[0, g.index["Navigate_G"]])
+
+
+def test_event_termination_ends_a_run_but_does_not_block_a_start():
+    def flag(o):
+        return o["event"] == 1
+
+    state_sub = Subtask("ByState", ["go"], terminated=flag)
+    event_sub = Subtask("ByEvent", ["go"], terminated=flag, event_termination=True)
+    root = Subtask("Root", ["ByState", "ByEvent"])
+    g = TaskGraph("Root", [root, state_sub, event_sub, Primitive("go", 0)], n_actions=1)
+    ctx = g.context(obs(2, event=[1, 0]))
+    assert ctx.terminated[:, 1:3].tolist() == [[True, True], [False, False]]
+    assert ctx.blocked[:, 1:3].tolist() == [[True, False], [False, False]]
+    assert ctx.available[:, 0, :2].tolist() == [[False, True], [True, True]]

@@ -38,6 +38,7 @@ class MaxQLearner(TabularLearner):
         all_states: also update ``C`` for every state visited during the child (needs the
             executor's ``record_visited``).
         per_instance: tables per Task-Stack context rather than per subtask.
+        init: initial completion values (see docs/design.md on initialisation and loops).
     """
 
     def __init__(
@@ -48,14 +49,15 @@ class MaxQLearner(TabularLearner):
         gamma: float = 1.0,
         all_states: bool = False,
         per_instance: bool = False,
+        init: float = 0.0,
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.all_states = all_states
         if all_states and graph.shaping_nodes:
             raise GraphError("all-states updating with per-step shaping rewards is not supported")
         self.internal = bool(graph.internal_nodes)
-        self.C = self.completion_bank()
-        self.C_int = self.completion_bank() if self.internal else self.C
+        self.C = self.completion_bank(init)
+        self.C_int = self.completion_bank(init) if self.internal else self.C
         self.V = self.primitive_bank()
 
     # ------------------------------------------------------------------ values
@@ -77,7 +79,7 @@ class MaxQLearner(TabularLearner):
             c_int = self.table_rows(self.C_int, ctx, ids, available) if self.internal else c
             q_int = child_v + c_int
             best = masked_argmax(q_int, available).unsqueeze(-1)
-            dead = ctx.terminated[:, nodes] | ~available.any(-1)
+            dead = ctx.blocked[:, nodes] | ~available.any(-1)
             zero = torch.zeros((), device=value.device)
             value[:, ids] = torch.where(dead, zero, (child_v + c).gather(-1, best).squeeze(-1))
             value_int[:, ids] = torch.where(dead, zero, q_int.gather(-1, best).squeeze(-1))

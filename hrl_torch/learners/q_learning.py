@@ -28,11 +28,14 @@ class SMDPQLearner(TabularLearner):
         alpha: step size (number or schedule).
         gamma: discount factor.
         per_instance: tables per Task-Stack context rather than per subtask.
+        init: initial action values.
     """
 
-    def __init__(self, graph, n_learners, alpha=0.5, gamma=1.0, per_instance=False) -> None:
+    def __init__(
+        self, graph, n_learners, alpha=0.5, gamma=1.0, per_instance=False, init: float = 0.0
+    ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
-        self.Q = self.completion_bank()
+        self.Q = self.completion_bank(init)
         self.composite = self.layout.composite_ids()
 
     def evaluate(self, ctx: StepContext) -> None:
@@ -43,7 +46,7 @@ class SMDPQLearner(TabularLearner):
         available = ctx.available[:, nodes]
         q = self.table_rows(self.Q, ctx, ids, available)
         best = torch.where(available, q, torch.full_like(q, -torch.inf)).amax(-1)
-        dead = ctx.terminated[:, nodes] | ~available.any(-1)
+        dead = ctx.blocked[:, nodes] | ~available.any(-1)
         value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
         value[:, ids] = torch.where(dead, 0.0, best)
         ctx.values["V"] = value

@@ -1,0 +1,76 @@
+"""Compare runs: one PNG with every algorithm's curve, and a markdown table of their summaries."""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from pathlib import Path
+
+from hrl_torch.runlog import mean_ci95, read_curves
+
+
+def compare_plot(
+    runs: dict[str, Path],
+    metric: str,
+    path: Path,
+    title: str = "",
+    reference: dict[str, float] | None = None,
+    ylim: tuple[float, float] | None = None,
+) -> Path:
+    """Mean and 95% interval over seeds of ``metric`` for every labelled run folder."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, run_dir in runs.items():
+        steps, curves = read_curves(Path(run_dir) / "progress.csv", metric)
+        if not curves:
+            continue
+        mean, half = mean_ci95(np.stack(list(curves.values())))
+        ax.plot(steps, mean, label=f"{label} ({len(curves)} seeds)")
+        ax.fill_between(steps, mean - half, mean + half, alpha=0.2)
+    for k, (name, value) in enumerate((reference or {}).items()):
+        ax.axhline(value, ls=("--", ":", "-.")[k % 3], c="gray", lw=1, label=name)
+    if ylim:
+        ax.set_ylim(*ylim)
+    ax.set_xlabel("env steps per learner")
+    ax.set_ylabel(metric)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def median_or_none(values: Sequence[float | None]) -> float | None:
+    """Median of the values that are not ``None`` (``None`` if there are none)."""
+    present = [v for v in values if v is not None]
+    return statistics.median(present) if present else None
+
+
+def summary_row(label: str, summary: dict) -> str:
+    """One markdown row: seeds reaching the threshold, median steps, final return, speed."""
+    per_seed = summary["per_seed"]
+    hits = [r["steps_to_threshold"] for r in per_seed]
+    finals = [r["final_eval_return"] for r in per_seed]
+    threshold = summary.get("threshold")
+    at_end = sum(f >= threshold for f in finals) if threshold is not None else "-"
+    med = median_or_none(hits)
+    return (
+        f"| {label} | {sum(h is not None for h in hits)}/{len(hits)} | "
+        f"{'-' if med is None else f'{med:,.0f}'} | {at_end}/{len(finals)} | "
+        f"{statistics.mean(finals):.2f} | {summary['train_seconds']:.1f} | "
+        f"{summary['env_steps_per_second']:,.0f} |"
+    )
+
+
+TABLE_HEADER = (
+    "| algorithm | seeds reaching threshold | median env steps to threshold | seeds above "
+    "threshold at the end | mean final return | train s (all seeds) | env steps/s |\n"
+    "|---|---|---|---|---|---|---|"
+)
