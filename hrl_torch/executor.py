@@ -22,8 +22,11 @@ child ended):
 - with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
   ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
   where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
+- with feature nodes (``Subtask.features``): ``features`` / ``next_features``
+  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``;
 - primitive fields ``[B]``: ``prim_valid``, ``prim_inst``, ``prim_node``, ``prim_state``,
-  ``prim_reward``, ``prim_duration``, ``prim_greedy``.
+  ``prim_reward``, ``prim_duration``, ``prim_greedy``, ``prim_action`` (the env action,
+  ``[B, action_dim]`` in continuous action spaces).
 """
 
 from __future__ import annotations
@@ -50,10 +53,12 @@ class Policy(Protocol):
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, ...]:
         """Return ``(child slot [B], greedy flag [B])`` for instances ``inst [B]``.
 
-        ``push`` counts the pushes made so far in this step.
+        ``push`` counts the pushes made so far in this step. On a graph with continuous
+        primitives, return a third tensor ``[B, action_dim]``: the action value of the rows
+        whose chosen child is a continuous primitive.
         """
         ...
 
@@ -79,6 +84,11 @@ def _at(x: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
     """``x[b, level[b]]`` for ``x [B, D, ...]`` and ``level [B]`` (clamped to 0)."""
     idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
     return x.gather(1, idx).squeeze(1)
+
+
+def _gather_levels(per_node: torch.Tensor, node: torch.Tensor) -> torch.Tensor:
+    """``per_node[b, node[b, k], :]`` for ``per_node [B, N, F]`` and ``node [B, D]``."""
+    return per_node.gather(1, node[..., None].expand(-1, -1, per_node.shape[-1]))
 
 
 def _put(x: torch.Tensor, level: torch.Tensor, value, mask: torch.Tensor) -> None:
@@ -118,6 +128,8 @@ class HierarchicalExecutor:
         "vis_state",
         "vis_steps",
         "vis_time",
+        "start_features",
+        "cont_action",
     )
 
     def __init__(
@@ -156,6 +168,10 @@ class HierarchicalExecutor:
         self.vis_state = torch.zeros(b, d, n_vis, **long)
         self.vis_steps = torch.zeros(b, d, n_vis, **long)
         self.vis_time = torch.zeros(b, d, n_vis, **flt)
+        # continuous state features where each level's current child started (PG nodes)
+        self.start_features = torch.zeros(b, d, max(graph.max_features, 1), **flt)
+        # the action vector of the continuous primitive on top (continuous action spaces)
+        self.cont_action = torch.zeros(b, max(graph.action_dim, 1), **flt)
         self._visit_slots = torch.arange(n_vis, **long)
         self._obs = None
         self._action = torch.zeros(b, **long)
@@ -194,13 +210,15 @@ class HierarchicalExecutor:
                     f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
                     f"(every child is terminated, not initiable or masked)"
                 )
-            choice, greedy = policy.select(inst, ctx, available, step, push)
+            choice, greedy, *action = policy.select(inst, ctx, available, step, push)
             push += 1
             level = self.top
             parent_greedy = _at(self.greedy, (level - 1).clamp_min(0)) | (level == 0)
             _put(self.child, level, choice, need)
             _put(self.start_state, level, ctx.abstract.gather(1, node[:, None]).squeeze(1), need)
             _put(self.greedy, level, greedy & parent_greedy, need)
+            if ctx.features is not None:
+                _put(self.start_features, level, _at(ctx.features, node), need)
             for acc in (self.steps, self.time, self.reward, self.disc_reward, self.internal):
                 _put(acc, level, 0, need)
             if self.config.record_visited:
@@ -215,12 +233,20 @@ class HierarchicalExecutor:
             child_is_prim = g.node_is_primitive[child_node]
             prim_state = ctx.abstract.gather(1, child_node[:, None]).squeeze(1)
             _put(self.start_state, self.top, prim_state, need & child_is_prim)
+            if g.action_dim:
+                if not action or action[0] is None:
+                    raise GraphError("a continuous primitive was chosen without an action value")
+                pushed = (need & child_is_prim)[:, None]
+                self.cont_action = torch.where(pushed, action[0], self.cont_action)
             self.stats.count_calls(self.learner, child_node, need)
             inst = torch.where(need, child_inst, inst)
             need = need & ~child_is_prim
         live = self.top >= 0
-        action = g.node_action[g.inst_node[inst.clamp_min(0)]]
-        self._action = torch.where(live, action, torch.zeros_like(action))
+        if g.action_dim:
+            self._action = torch.where(live[:, None], self.cont_action, 0.0)
+        else:
+            action = g.node_action[g.inst_node[inst.clamp_min(0)]]
+            self._action = torch.where(live, action, torch.zeros_like(action))
         self._obs = ctx.obs
         return self._action
 
@@ -345,7 +371,11 @@ class HierarchicalExecutor:
             "prim_reward": step_td["reward"],
             "prim_duration": step_td["duration"],
             "prim_greedy": _at(self.greedy, (top - 1).clamp_min(0)),
+            "prim_action": self._action.clone(),
         }
+        if ctx.features is not None:
+            fields["features"] = self.start_features.clone()
+            fields["next_features"] = _gather_levels(ctx.features, node)
         if self.config.record_visited:
             fields.update(
                 visited_state=self.vis_state.clone(),

@@ -49,6 +49,9 @@ class Subtask(nn.Module):
         event_termination: the predicate marks an *event* of the last step (e.g. "a part was
             delivered") rather than a terminal *state*: it ends a running invocation but does
             not make the subtask unavailable, or worth zero, where it holds.
+        features: ``obs -> [B, n_features]`` float, a continuous state description for
+            function approximation (policy-gradient nodes), beside the discrete ``abstract``.
+        n_features: width of ``features``.
     """
 
     is_primitive = False
@@ -68,9 +71,12 @@ class Subtask(nn.Module):
         shaping_reward: Callable[[TensorDict, torch.Tensor, TensorDict], torch.Tensor]
         | None = None,
         event_termination: bool | None = None,
+        features: ObsFn | None = None,
+        n_features: int = 0,
     ) -> None:
         super().__init__()
         self.name = name
+        self.n_features = int(n_features)
         if event_termination is not None:
             self.event_termination = bool(event_termination)
         self.children_names = tuple(children)
@@ -82,6 +88,7 @@ class Subtask(nn.Module):
             "child_mask": child_mask,
             "pseudo_reward": pseudo_reward,
             "shaping_reward": shaping_reward,
+            "features": features,
         }
 
     def abstract(self, obs: TensorDict) -> torch.Tensor:
@@ -94,6 +101,15 @@ class Subtask(nn.Module):
             )
         b, device = _batch(obs)
         return torch.zeros(b, dtype=torch.long, device=device)
+
+    def features(self, obs: TensorDict) -> torch.Tensor | None:
+        """Continuous state features ``[B, n_features]`` (``None`` when ``n_features == 0``)."""
+        fn = self._fns["features"]
+        if fn is None:
+            if self.n_features:
+                raise GraphError(f"subtask {self.name!r} has n_features but no features()")
+            return None
+        return fn(obs)
 
     def terminated(self, obs: TensorDict) -> torch.Tensor:
         """Whether ``obs`` is in the terminal set ``T_i``, shape ``[B]``."""
@@ -146,20 +162,32 @@ class Primitive(nn.Module):
 
     Args:
         name: unique name in the graph.
-        action: the env action index it executes.
+        action: the env action index it executes (discrete action spaces).
         n_states: size of the abstract state space of its value table ``V(a, s)``; the default
             1 says its expected reward does not depend on the state (Dietterich's leaf
             irrelevance).
         abstract: ``obs -> [B] long``; required when ``n_states > 1``.
+        action_dim: for a continuous action space, the width of the action vector; its value is
+            chosen by the parent's policy when the primitive is pushed (``action`` unused).
     """
 
     is_primitive = True
     children_names: tuple[str, ...] = ()
+    n_features = 0
+    event_termination = False
 
-    def __init__(self, name: str, action: int, n_states: int = 1, abstract: ObsFn | None = None):
+    def __init__(
+        self,
+        name: str,
+        action: int = -1,
+        n_states: int = 1,
+        abstract: ObsFn | None = None,
+        action_dim: int = 0,
+    ):
         super().__init__()
         self.name = name
         self.action = int(action)
+        self.action_dim = int(action_dim)
         self.n_states = int(n_states)
         self._abstract = abstract
 
@@ -194,7 +222,8 @@ class StepContext:
     ``terminated`` ``[B, n_nodes]`` bool (the predicate: ends a running invocation),
     ``blocked`` ``[B, n_nodes]`` bool (a terminal *state*: the node can neither start nor has
     value here; ``terminated`` without the event-terminated nodes),
-    ``available`` ``[B, n_nodes, max_children]`` bool.
+    ``available`` ``[B, n_nodes, max_children]`` bool, ``features``
+    ``[B, n_nodes, max_features]`` float (``None`` when no node has features).
     Learners add their own per-node values to ``values`` (e.g. ``V`` ``[B, n_tables]``).
     """
 
@@ -204,6 +233,7 @@ class StepContext:
     terminated: torch.Tensor
     blocked: torch.Tensor
     available: torch.Tensor
+    features: torch.Tensor | None = None
     values: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
@@ -245,10 +275,15 @@ class TaskGraph(nn.Module):
             raise GraphError(f"root {root!r} is not a node of the graph")
         if by_name[root].is_primitive:
             raise GraphError(f"root {root!r} must be a subtask, not a primitive")
+        kinds = {bool(n.action_dim) for n in nodes if n.is_primitive}
+        if len(kinds) > 1:
+            raise GraphError("primitives must be all discrete or all continuous (action_dim > 0)")
         for node in nodes:
             if node.n_states < 1:
                 raise GraphError(f"{node.name!r}: n_states must be >= 1, got {node.n_states}")
             if node.is_primitive:
+                if node.action_dim:
+                    continue
                 if n_actions is not None and not 0 <= node.action < n_actions:
                     raise GraphError(
                         f"primitive {node.name!r} has action {node.action}, outside the env's "
@@ -370,6 +405,9 @@ class TaskGraph(nn.Module):
             and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
         ]
         self.check_ranges = True
+        self.action_dim = max((x.action_dim for x in self.nodes if x.is_primitive), default=0)
+        self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
+        self.max_features = max((x.n_features for x in self.nodes), default=0)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -427,7 +465,12 @@ class TaskGraph(nn.Module):
             mask = x.child_mask(obs)
             if mask is not None:
                 available[:, k, : mask.shape[1]] &= mask.bool()
-        return StepContext(obs, learner, abstract, terminated, blocked, available)
+        features = None
+        if self.feature_nodes:
+            features = torch.zeros(b, self.n_nodes, self.max_features, device=device)
+            for k in self.feature_nodes:
+                features[:, k, : self.nodes[k].n_features] = self.nodes[k].features(obs)
+        return StepContext(obs, learner, abstract, terminated, blocked, available, features)
 
     def internal_rewards_at_termination(self, obs: TensorDict) -> torch.Tensor:
         """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``."""
