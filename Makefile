@@ -11,6 +11,8 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[dev]"
+	# make the repository root (agents/, envs/, scripts/) importable in this venv only
+	$(BIN)/python -c "import site, pathlib; pathlib.Path(site.getsitepackages()[0], 'hrl_torch_repo.pth').write_text('$(CURDIR)\n')"
 	touch $(STAMP)
 
 run: $(STAMP)

@@ -130,6 +130,7 @@ class HierarchicalExecutor:
         "vis_time",
         "start_features",
         "cont_action",
+        "memory",
     )
 
     def __init__(
@@ -172,6 +173,9 @@ class HierarchicalExecutor:
         self.start_features = torch.zeros(b, d, max(graph.max_features, 1), **flt)
         # the action vector of the continuous primitive on top (continuous action spaces)
         self.cont_action = torch.zeros(b, max(graph.action_dim, 1), **flt)
+        # what the running invocation of each node remembered when it started (memory nodes);
+        # pass it to graph.context so their termination and features see it
+        self.memory = torch.zeros(b, graph.n_nodes, max(graph.max_memory, 1), **flt)
         self._visit_slots = torch.arange(n_vis, **long)
         self._obs = None
         self._action = torch.zeros(b, **long)
@@ -190,7 +194,12 @@ class HierarchicalExecutor:
         Rows whose stack is empty and whose episode is not over start at the root.
         """
         g = self.graph
+        fresh_memory = g.remember_all(ctx.obs)
         fresh = (self.top < 0) & ~self.done
+        if fresh_memory is not None:
+            self.memory[:, g.root] = torch.where(
+                fresh[:, None], fresh_memory[:, g.root], self.memory[:, g.root]
+            )
         self.stack[:, 0] = torch.where(fresh, 0, self.stack[:, 0])
         self.top = torch.where(fresh, 0, self.top)
         self.inv_steps[:, 0] = torch.where(fresh, 0, self.inv_steps[:, 0])
@@ -238,6 +247,11 @@ class HierarchicalExecutor:
                     raise GraphError("a continuous primitive was chosen without an action value")
                 pushed = (need & child_is_prim)[:, None]
                 self.cont_action = torch.where(pushed, action[0], self.cont_action)
+            if fresh_memory is not None:
+                rows = torch.arange(self.batch_size, device=self.device)
+                self.memory[rows, child_node] = torch.where(
+                    need[:, None], fresh_memory[rows, child_node], self.memory[rows, child_node]
+                )
             self.stats.count_calls(self.learner, child_node, need)
             inst = torch.where(need, child_inst, inst)
             need = need & ~child_is_prim

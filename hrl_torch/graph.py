@@ -52,10 +52,17 @@ class Subtask(nn.Module):
         features: ``obs -> [B, n_features]`` float, a continuous state description for
             function approximation (policy-gradient nodes), beside the discrete ``abstract``.
         n_features: width of ``features``.
+        remember: ``obs -> [B, memory_size]``, what an invocation records when it starts (e.g.
+            the position it started from, to steer in a local frame). With
+            ``memory_size > 0``, ``terminated`` and ``features`` receive ``(obs, memory)``.
+            Such a subtask's termination depends on where it started, so it never blocks a
+            start (as with ``event_termination``).
+        memory_size: width of ``remember``.
     """
 
     is_primitive = False
     event_termination = False
+    memory_size = 0
 
     def __init__(
         self,
@@ -73,10 +80,14 @@ class Subtask(nn.Module):
         event_termination: bool | None = None,
         features: ObsFn | None = None,
         n_features: int = 0,
+        remember: ObsFn | None = None,
+        memory_size: int = 0,
     ) -> None:
         super().__init__()
         self.name = name
         self.n_features = int(n_features)
+        if memory_size:
+            self.memory_size = int(memory_size)
         if event_termination is not None:
             self.event_termination = bool(event_termination)
         self.children_names = tuple(children)
@@ -89,7 +100,11 @@ class Subtask(nn.Module):
             "pseudo_reward": pseudo_reward,
             "shaping_reward": shaping_reward,
             "features": features,
+            "remember": remember,
         }
+
+    def _with_memory(self, fn, obs: TensorDict, memory: torch.Tensor | None):
+        return fn(obs, memory) if self.memory_size else fn(obs)
 
     def abstract(self, obs: TensorDict) -> torch.Tensor:
         """Abstract state index in ``[0, n_states)``, shape ``[B]``."""
@@ -102,19 +117,28 @@ class Subtask(nn.Module):
         b, device = _batch(obs)
         return torch.zeros(b, dtype=torch.long, device=device)
 
-    def features(self, obs: TensorDict) -> torch.Tensor | None:
+    def remember(self, obs: TensorDict) -> torch.Tensor | None:
+        """What a new invocation records, ``[B, memory_size]`` (``None`` without memory)."""
+        fn = self._fns["remember"]
+        if fn is None:
+            if self.memory_size:
+                raise GraphError(f"subtask {self.name!r} has memory_size but no remember()")
+            return None
+        return fn(obs)
+
+    def features(self, obs: TensorDict, memory: torch.Tensor | None = None) -> torch.Tensor | None:
         """Continuous state features ``[B, n_features]`` (``None`` when ``n_features == 0``)."""
         fn = self._fns["features"]
         if fn is None:
             if self.n_features:
                 raise GraphError(f"subtask {self.name!r} has n_features but no features()")
             return None
-        return fn(obs)
+        return self._with_memory(fn, obs, memory)
 
-    def terminated(self, obs: TensorDict) -> torch.Tensor:
+    def terminated(self, obs: TensorDict, memory: torch.Tensor | None = None) -> torch.Tensor:
         """Whether ``obs`` is in the terminal set ``T_i``, shape ``[B]``."""
         if self._fns["terminated"] is not None:
-            return self._fns["terminated"](obs)
+            return self._with_memory(self._fns["terminated"], obs, memory)
         b, device = _batch(obs)
         return torch.zeros(b, dtype=torch.bool, device=device)
 
@@ -174,6 +198,7 @@ class Primitive(nn.Module):
     is_primitive = True
     children_names: tuple[str, ...] = ()
     n_features = 0
+    memory_size = 0
     event_termination = False
 
     def __init__(
@@ -383,9 +408,10 @@ class TaskGraph(nn.Module):
             persistent=False,
         )
         self.register_buffer("node_height", torch.tensor(height, **as_long), persistent=False)
+        # nodes whose termination predicate never blocks a start: events and memory nodes
         self.register_buffer(
             "node_event",
-            torch.tensor([bool(getattr(x, "event_termination", False)) for x in self.nodes]),
+            torch.tensor([bool(x.event_termination or x.memory_size) for x in self.nodes]),
             persistent=False,
         )
         self.register_buffer("inst_node", torch.tensor(inst_node, **as_long), persistent=False)
@@ -408,6 +434,8 @@ class TaskGraph(nn.Module):
         self.action_dim = max((x.action_dim for x in self.nodes if x.is_primitive), default=0)
         self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
         self.max_features = max((x.n_features for x in self.nodes), default=0)
+        self.memory_nodes = [k for k, x in enumerate(self.nodes) if x.memory_size]
+        self.max_memory = max((x.memory_size for x in self.nodes), default=0)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -432,14 +460,23 @@ class TaskGraph(nn.Module):
         return [k for k, x in enumerate(self.nodes) if not x.is_primitive]
 
     # ------------------------------------------------------------------ per-step evaluation
-    def context(self, obs: TensorDict, learner: torch.Tensor | None = None) -> StepContext:
+    def context(
+        self,
+        obs: TensorDict,
+        learner: torch.Tensor | None = None,
+        memory: torch.Tensor | None = None,
+    ) -> StepContext:
         """Abstract states, termination and available children of every node for ``obs``.
 
-        ``learner [B]`` says which learner each row belongs to (default: all learner 0).
+        ``learner [B]`` says which learner each row belongs to (default: all learner 0);
+        ``memory [B, n_nodes, max_memory]`` is what each node's running invocation remembered
+        (the executor's ``memory``; needed only by nodes with ``memory_size``).
         """
         b, device = _batch(obs)
         if learner is None:
             learner = torch.zeros(b, dtype=torch.long, device=device)
+        if memory is None and self.memory_nodes:
+            memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         abstract = torch.stack([node.abstract(obs).long() for node in self.nodes], dim=1)
         if self.check_ranges:
             bad = (abstract < 0) | (abstract >= self.node_n_states)
@@ -451,7 +488,11 @@ class TaskGraph(nn.Module):
                 )
         false = torch.zeros(b, dtype=torch.bool, device=device)
         terminated = torch.stack(
-            [false if x.is_primitive else x.terminated(obs).bool() for x in self.nodes], dim=1
+            [
+                false if x.is_primitive else x.terminated(obs, self._memory(memory, k)).bool()
+                for k, x in enumerate(self.nodes)
+            ],
+            dim=1,
         )
         initiable = torch.stack(
             [~false if x.is_primitive else x.initiable(obs).bool() for x in self.nodes], dim=1
@@ -469,8 +510,23 @@ class TaskGraph(nn.Module):
         if self.feature_nodes:
             features = torch.zeros(b, self.n_nodes, self.max_features, device=device)
             for k in self.feature_nodes:
-                features[:, k, : self.nodes[k].n_features] = self.nodes[k].features(obs)
+                node = self.nodes[k]
+                features[:, k, : node.n_features] = node.features(obs, self._memory(memory, k))
         return StepContext(obs, learner, abstract, terminated, blocked, available, features)
+
+    def _memory(self, memory: torch.Tensor | None, k: int) -> torch.Tensor | None:
+        size = self.nodes[k].memory_size
+        return memory[:, k, :size] if size else None
+
+    def remember_all(self, obs: TensorDict) -> torch.Tensor | None:
+        """What a new invocation of every memory node would record: ``[B, n_nodes, M]``."""
+        if not self.memory_nodes:
+            return None
+        b, device = _batch(obs)
+        out = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
+        for k in self.memory_nodes:
+            out[:, k, : self.nodes[k].memory_size] = self.nodes[k].remember(obs)
+        return out
 
     def internal_rewards_at_termination(self, obs: TensorDict) -> torch.Tensor:
         """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``."""

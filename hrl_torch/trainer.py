@@ -113,7 +113,7 @@ class Trainer:
     def _begin(self) -> None:
         obs = self.env.reset()
         self.executor.reset()
-        self.ctx = self.graph.context(obs, self.rows)
+        self.ctx = self.graph.context(obs, self.rows, self.executor.memory)
         self.learner.evaluate(self.ctx)
         self.action = self.executor.act(self.ctx, self.policy, self.step)
 
@@ -122,7 +122,7 @@ class Trainer:
         if self.action is None:
             self._begin()
         td = self.env.step(self.action)
-        ctx = self.graph.context(td, self.rows)
+        ctx = self.graph.context(td, self.rows, self.executor.memory)
         self.learner.evaluate(ctx)
         batch = self.executor.observe(td, ctx)
         self.learner.update(batch, ctx, self.step)
@@ -198,7 +198,7 @@ class Trainer:
         policy = ValuePolicy(self.learner, Greedy(), self._eval_rng())
         rows = env.learner_of_row()
         obs = env.reset()
-        ctx = self.graph.context(obs, rows)
+        ctx = self.graph.context(obs, rows, executor.memory)
         self.learner.evaluate(ctx)
         action = executor.act(ctx, policy, self.step)
         ret = torch.zeros(env.batch_size)
@@ -212,7 +212,7 @@ class Trainer:
             finished |= ended
             if bool(finished.all()):
                 break
-            ctx = self.graph.context(td, rows)
+            ctx = self.graph.context(td, rows, executor.memory)
             self.learner.evaluate(ctx)
             executor.observe(td, ctx)
             action = executor.act(ctx, policy, self.step)
