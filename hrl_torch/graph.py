@@ -489,7 +489,7 @@ class TaskGraph(nn.Module):
         false = torch.zeros(b, dtype=torch.bool, device=device)
         terminated = torch.stack(
             [
-                false if x.is_primitive else x.terminated(obs, self._memory(memory, k)).bool()
+                false if x.is_primitive else self._call(x.terminated, obs, memory, k).bool()
                 for k, x in enumerate(self.nodes)
             ],
             dim=1,
@@ -511,12 +511,13 @@ class TaskGraph(nn.Module):
             features = torch.zeros(b, self.n_nodes, self.max_features, device=device)
             for k in self.feature_nodes:
                 node = self.nodes[k]
-                features[:, k, : node.n_features] = node.features(obs, self._memory(memory, k))
+                features[:, k, : node.n_features] = self._call(node.features, obs, memory, k)
         return StepContext(obs, learner, abstract, terminated, blocked, available, features)
 
-    def _memory(self, memory: torch.Tensor | None, k: int) -> torch.Tensor | None:
+    def _call(self, method, obs: TensorDict, memory: torch.Tensor | None, k: int):
+        """``method(obs)``, or ``method(obs, memory of node k)`` for a memory node."""
         size = self.nodes[k].memory_size
-        return memory[:, k, :size] if size else None
+        return method(obs, memory[:, k, :size]) if size else method(obs)
 
     def remember_all(self, obs: TensorDict) -> torch.Tensor | None:
         """What a new invocation of every memory node would record: ``[B, n_nodes, M]``."""
