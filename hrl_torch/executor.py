@@ -38,6 +38,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.ops import lookup
 
 
 class SubtaskTimeoutError(RuntimeError):
@@ -81,7 +82,7 @@ class ExecutorConfig:
 
 
 def _at(x: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
-    """``x[b, level[b]]`` for ``x [B, D, ...]`` and ``level [B]`` (clamped to 0)."""
+    """``x[b, level[b]]`` for ``x [B, W, ...]`` and ``level [B]`` (clamped to 0)."""
     idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
     return x.gather(1, idx).squeeze(1)
 
@@ -91,18 +92,24 @@ def _gather_levels(per_node: torch.Tensor, node: torch.Tensor) -> torch.Tensor:
     return per_node.gather(1, node[..., None].expand(-1, -1, per_node.shape[-1]))
 
 
-def _put(x: torch.Tensor, level: torch.Tensor, value, mask: torch.Tensor) -> None:
-    """``x[b, level[b]] = value[b]`` where ``mask[b]`` (in place)."""
-    old = _at(x, level)
-    value = torch.as_tensor(value, dtype=x.dtype, device=x.device).expand_as(old)
-    m = mask.view(-1, *([1] * (old.dim() - 1)))
-    new = torch.where(m, value, old)
-    idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
-    x.scatter_(1, idx, new.unsqueeze(1))
+def _scatter_at(x: torch.Tensor, slot: torch.Tensor, value) -> None:
+    """``x[b, slot[b]] = value[b]`` in place, ``slot [B, 1]``.
+
+    Rows aimed at the trash column write there harmlessly.
+    """
+    if isinstance(value, torch.Tensor):
+        value = value.to(x.dtype).view(x.shape[0], 1, *x.shape[2:])
+        idx = slot.view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
+        x.scatter_(1, idx, value)
+    else:
+        x.scatter_(1, slot.view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:]), value)
 
 
 class HierarchicalExecutor:
     """Task-Stacks for ``B`` env rows over one task graph.
+
+    Per-level tensors are ``[B, D + 1]``: levels ``0..D-1`` and a trash column ``D`` that masked
+    writes are aimed at, so a push writes each field with one ``scatter_`` and no gather/where.
 
     Args:
         graph: the task graph.
@@ -150,27 +157,30 @@ class HierarchicalExecutor:
         device = graph.node_children.device
         self.device = device
         b, d, n_vis = batch_size, graph.max_levels, max(self.config.record_visited, 1)
+        w = d + 1  # + trash column
+        self.depth = d
         long = dict(dtype=torch.long, device=device)
         flt = dict(dtype=torch.float32, device=device)
-        self.levels = torch.arange(d, **long)
+        self.levels = torch.arange(w, **long)
         self.learner = torch.arange(b, **long) // envs_per_learner
-        self.stack = torch.full((b, d), -1, **long)
+        self.rows = torch.arange(b, **long)
+        self.stack = torch.full((b, w), -1, **long)
         self.top = torch.full((b,), -1, **long)
-        self.child = torch.zeros(b, d, **long)
-        self.start_state = torch.zeros(b, d, **long)
-        self.steps = torch.zeros(b, d, **long)
-        self.time = torch.zeros(b, d, **flt)
-        self.reward = torch.zeros(b, d, **flt)
-        self.disc_reward = torch.zeros(b, d, **flt)
-        self.internal = torch.zeros(b, d, **flt)
-        self.greedy = torch.ones(b, d, dtype=torch.bool, device=device)
-        self.inv_steps = torch.zeros(b, d, **long)
+        self.child = torch.zeros(b, w, **long)
+        self.start_state = torch.zeros(b, w, **long)
+        self.steps = torch.zeros(b, w, **long)
+        self.time = torch.zeros(b, w, **flt)
+        self.reward = torch.zeros(b, w, **flt)
+        self.disc_reward = torch.zeros(b, w, **flt)
+        self.internal = torch.zeros(b, w, **flt)
+        self.greedy = torch.ones(b, w, dtype=torch.bool, device=device)
+        self.inv_steps = torch.zeros(b, w, **long)
         self.done = torch.zeros(b, dtype=torch.bool, device=device)
-        self.vis_state = torch.zeros(b, d, n_vis, **long)
-        self.vis_steps = torch.zeros(b, d, n_vis, **long)
-        self.vis_time = torch.zeros(b, d, n_vis, **flt)
+        self.vis_state = torch.zeros(b, w, n_vis, **long)
+        self.vis_steps = torch.zeros(b, w, n_vis, **long)
+        self.vis_time = torch.zeros(b, w, n_vis, **flt)
         # continuous state features where each level's current child started (PG nodes)
-        self.start_features = torch.zeros(b, d, max(graph.max_features, 1), **flt)
+        self.start_features = torch.zeros(b, w, max(graph.max_features, 1), **flt)
         # the action vector of the continuous primitive on top (continuous action spaces)
         self.cont_action = torch.zeros(b, max(graph.action_dim, 1), **flt)
         # what the running invocation of each node remembered when it started (memory nodes);
@@ -193,64 +203,70 @@ class HierarchicalExecutor:
 
         Rows whose stack is empty and whose episode is not over start at the root.
         """
-        g = self.graph
+        g, trash = self.graph, self.depth
         fresh_memory = g.remember_all(ctx.obs)
         fresh = (self.top < 0) & ~self.done
+        slot = torch.where(fresh, 0, trash)[:, None]
+        _scatter_at(self.stack, slot, 0)
+        _scatter_at(self.inv_steps, slot, 0)
+        self.top = torch.where(fresh, 0, self.top)
         if fresh_memory is not None:
             self.memory[:, g.root] = torch.where(
                 fresh[:, None], fresh_memory[:, g.root], self.memory[:, g.root]
             )
-        self.stack[:, 0] = torch.where(fresh, 0, self.stack[:, 0])
-        self.top = torch.where(fresh, 0, self.top)
-        self.inv_steps[:, 0] = torch.where(fresh, 0, self.inv_steps[:, 0])
-        self.stats.count_calls(self.learner, torch.full_like(self.top, g.root), fresh)
-        inst = _at(self.stack, self.top)
-        need = (self.top >= 0) & ~g.node_is_primitive[g.inst_node[inst.clamp_min(0)]]
-        need &= ~self.done
+        self.stats.count_calls(self.learner, g.root, fresh)
+        inst = _at(self.stack, self.top).clamp_min(0)
+        need = (self.top >= 0) & ~self.done & ~lookup(g.inst_is_primitive, inst)
         policy.new_step()
         push = 0
         while bool(need.any()):
-            node = g.inst_node[inst.clamp_min(0)]
-            available = ctx.available[torch.arange(self.batch_size, device=self.device), node]
-            stuck = need & ~available.any(-1)
-            if bool(stuck.any()):
-                row = int(stuck.nonzero()[0])
+            node = lookup(g.inst_node, inst)
+            available = ctx.available.gather(
+                1, node.view(-1, 1, 1).expand(-1, 1, ctx.available.shape[2])
+            ).squeeze(1)
+            if bool((need & ~available.any(-1)).any()):
+                row = int((need & ~available.any(-1)).nonzero()[0])
                 raise GraphError(
                     f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
                     f"(every child is terminated, not initiable or masked)"
                 )
             choice, greedy, *action = policy.select(inst, ctx, available, step, push)
             push += 1
-            level = self.top
-            parent_greedy = _at(self.greedy, (level - 1).clamp_min(0)) | (level == 0)
-            _put(self.child, level, choice, need)
-            _put(self.start_state, level, ctx.abstract.gather(1, node[:, None]).squeeze(1), need)
-            _put(self.greedy, level, greedy & parent_greedy, need)
-            if ctx.features is not None:
-                _put(self.start_features, level, _at(ctx.features, node), need)
+            # level `top` records its new child, where it starts, and fresh accumulators
+            slot = torch.where(need, self.top, trash)[:, None]
+            parent_greedy = _at(self.greedy, self.top - 1) | (self.top == 0)
+            _scatter_at(self.child, slot, choice)
+            _scatter_at(self.start_state, slot, ctx.abstract.gather(1, node[:, None]))
+            _scatter_at(self.greedy, slot, greedy & parent_greedy)
             for acc in (self.steps, self.time, self.reward, self.disc_reward, self.internal):
-                _put(acc, level, 0, need)
+                _scatter_at(acc, slot, 0)
+            if ctx.features is not None:
+                _scatter_at(self.start_features, slot, _at(ctx.features, node))
             if self.config.record_visited:
-                _put(self.vis_state[:, :, 0], level, _at(self.start_state, level), need)
-                _put(self.vis_steps[:, :, 0], level, 0, need)
-                _put(self.vis_time[:, :, 0], level, 0.0, need)
-            child_inst = g.inst_children[inst.clamp_min(0), choice]
-            child_node = g.inst_node[child_inst.clamp_min(0)]
+                _scatter_at(self.vis_state[:, :, 0], slot, _at(self.start_state, self.top))
+                _scatter_at(self.vis_steps[:, :, 0], slot, 0)
+                _scatter_at(self.vis_time[:, :, 0], slot, 0.0)
+            # push the child one level up
+            child_inst = lookup(g.inst_children.view(-1), inst * g.max_children + choice)
+            child_inst = child_inst.clamp_min(0)  # rows that push nothing may read padding
+            child_node = lookup(g.inst_node, child_inst)
+            child_is_prim = lookup(g.node_is_primitive, child_node)
             self.top = self.top + need.long()
-            _put(self.stack, self.top, child_inst, need)
-            _put(self.inv_steps, self.top, 0, need)
-            child_is_prim = g.node_is_primitive[child_node]
-            prim_state = ctx.abstract.gather(1, child_node[:, None]).squeeze(1)
-            _put(self.start_state, self.top, prim_state, need & child_is_prim)
+            slot = torch.where(need, self.top, trash)[:, None]
+            _scatter_at(self.stack, slot, child_inst)
+            _scatter_at(self.inv_steps, slot, 0)
+            prim_slot = torch.where(need & child_is_prim, self.top, trash)[:, None]
+            _scatter_at(self.start_state, prim_slot, ctx.abstract.gather(1, child_node[:, None]))
             if g.action_dim:
                 if not action or action[0] is None:
                     raise GraphError("a continuous primitive was chosen without an action value")
                 pushed = (need & child_is_prim)[:, None]
                 self.cont_action = torch.where(pushed, action[0], self.cont_action)
             if fresh_memory is not None:
-                rows = torch.arange(self.batch_size, device=self.device)
-                self.memory[rows, child_node] = torch.where(
-                    need[:, None], fresh_memory[rows, child_node], self.memory[rows, child_node]
+                self.memory[self.rows, child_node] = torch.where(
+                    need[:, None],
+                    fresh_memory[self.rows, child_node],
+                    self.memory[self.rows, child_node],
                 )
             self.stats.count_calls(self.learner, child_node, need)
             inst = torch.where(need, child_inst, inst)
@@ -259,8 +275,7 @@ class HierarchicalExecutor:
         if g.action_dim:
             self._action = torch.where(live[:, None], self.cont_action, 0.0)
         else:
-            action = g.node_action[g.inst_node[inst.clamp_min(0)]]
-            self._action = torch.where(live, action, torch.zeros_like(action))
+            self._action = torch.where(live, lookup(g.node_action, lookup(g.inst_node, inst)), 0)
         self._obs = ctx.obs
         return self._action
 
@@ -278,19 +293,22 @@ class HierarchicalExecutor:
         env_trunc = step_td["truncated"] & real & ~env_term
         levels = self.levels[None, :]
         active = (levels <= self.top[:, None]) & real[:, None]
-        node = g.inst_node[self.stack.clamp_min(0)]
-        is_prim = g.node_is_primitive[node] & active
+        node = lookup(g.inst_node, self.stack.clamp_min(0))
+        is_prim = lookup(g.node_is_primitive, node) & active
 
         # accumulate reward and time of the current child at every level
-        disc = self.gamma**self.time
         self.reward += active * reward[:, None]
-        self.disc_reward += active * disc * reward[:, None]
+        if self.gamma == 1.0:
+            self.disc_reward += active * reward[:, None]
+        else:
+            disc = self.gamma**self.time
+            self.disc_reward += active * disc * reward[:, None]
         if g.shaping_nodes and self._obs is not None:
-            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs)
-            self.internal += active * disc * shaping.gather(1, node)
-        self.steps += active.long()
+            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs).gather(1, node)
+            self.internal += active * (self.gamma**self.time) * shaping
+        self.steps += active
         self.time += active * tau[:, None]
-        self.inv_steps += active.long()
+        self.inv_steps += active
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
@@ -307,12 +325,10 @@ class HierarchicalExecutor:
                     f"terminating (env row {row}, instance {path})"
                 )
         cut = ended_own | timeout | (active & env_trunc[:, None])
-        popped = (cut.long().cumsum(1) > 0) & active
-        child_popped = torch.zeros_like(popped)
-        child_popped[:, :-1] = popped[:, 1:]
+        popped = (cut.cumsum(1) > 0) & active
+        child_popped = _shift_left(popped)
         emit = active & ~is_prim & child_popped
-        child_done = torch.zeros_like(popped)
-        child_done[:, :-1] = ended_own[:, 1:]
+        child_done = _shift_left(ended_own)
         terminal = (own | env_term[:, None]) & active & ~is_prim
 
         batch = self._transitions(step_td, ctx, node, emit, child_done, terminal, env_trunc, real)
@@ -321,8 +337,8 @@ class HierarchicalExecutor:
 
         # statistics, then pop
         self.stats.count_ends(self.learner, node, popped, ended_own & popped, self.inv_steps)
-        self.stack = torch.where(popped, torch.full_like(self.stack, -1), self.stack)
-        self.top = torch.where(real, (active & ~popped).sum(1) - 1, torch.full_like(self.top, -1))
+        self.stack = torch.where(popped, -1, self.stack)
+        self.top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
         self.done = env_term | env_trunc
         return batch
 
@@ -347,58 +363,60 @@ class HierarchicalExecutor:
 
     def _transitions(self, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
         g = self.graph
-        b, d = self.stack.shape
-        shift = torch.full_like(self.stack, -1)
-        shift[:, :-1] = self.stack[:, 1:]
-        parent = torch.full_like(self.stack, -1)
-        parent[:, 1:] = self.stack[:, :-1]
-        pseudo = torch.zeros(b, d, device=self.device)
+        d = self.depth
+        stack = self.stack[:, :d]
+        node = node[:, :d]
+        terminal = terminal[:, :d]
+        emit = emit[:, :d]
+        child_inst = _shift_left(self.stack, fill=-1)[:, :d]
+        parent_inst = _shift_right(self.stack, fill=-1)[:, :d]
         if g.internal_nodes:
             pseudo = g.internal_rewards_at_termination(ctx.obs).gather(1, node) * terminal
+        else:
+            pseudo = torch.zeros(node.shape, device=self.device)
         top = self.top
         prim_inst = _at(self.stack, top)
-        prim_node = g.inst_node[prim_inst.clamp_min(0)]
         fields = {
             "valid": emit,
             "learner": self.learner,
-            "inst": self.stack.clone(),
+            "inst": stack.clone(),
             "node": node,
-            "child": self.child.clone(),
-            "child_inst": shift,
-            "parent_inst": parent,
-            "state": self.start_state.clone(),
+            "child": self.child[:, :d].clone(),
+            "child_inst": child_inst,
+            "parent_inst": parent_inst,
+            "state": self.start_state[:, :d].clone(),
             "next_state": ctx.abstract.gather(1, node),
-            "steps": self.steps.clone(),
-            "duration": self.time.clone(),
-            "reward": self.reward.clone(),
-            "discounted_reward": self.disc_reward.clone(),
-            "internal_reward": self.internal.clone(),
+            "steps": self.steps[:, :d].clone(),
+            "duration": self.time[:, :d].clone(),
+            "reward": self.reward[:, :d].clone(),
+            "discounted_reward": self.disc_reward[:, :d].clone(),
+            "internal_reward": self.internal[:, :d].clone(),
             "pseudo_reward": pseudo,
             "terminal": terminal,
-            "child_done": child_done & emit,
+            "child_done": child_done[:, :d] & emit,
             "truncated": env_trunc[:, None] & emit & ~terminal,
-            "greedy": self.greedy.clone(),
+            "greedy": self.greedy[:, :d].clone(),
             "prim_valid": real & (top >= 0),
             "prim_inst": prim_inst,
-            "prim_node": prim_node,
+            "prim_node": lookup(g.inst_node, prim_inst.clamp_min(0)),
             "prim_state": _at(self.start_state, top),
             "prim_reward": step_td["reward"],
             "prim_duration": step_td["duration"],
-            "prim_greedy": _at(self.greedy, (top - 1).clamp_min(0)),
+            "prim_greedy": _at(self.greedy, top - 1),
             "prim_action": self._action.clone(),
         }
         if ctx.features is not None:
-            fields["features"] = self.start_features.clone()
+            fields["features"] = self.start_features[:, :d].clone()
             fields["next_features"] = _gather_levels(ctx.features, node)
         if self.config.record_visited:
             fields.update(
-                visited_state=self.vis_state.clone(),
-                visited_steps=self.vis_steps.clone(),
-                visited_time=self.vis_time.clone(),
+                visited_state=self.vis_state[:, :d].clone(),
+                visited_steps=self.vis_steps[:, :d].clone(),
+                visited_time=self.vis_time[:, :d].clone(),
                 visited_valid=self._visit_slots[None, None, :]
-                < self.steps.clamp_max(self.config.record_visited)[:, :, None],
+                < self.steps[:, :d].clamp_max(self.config.record_visited)[:, :, None],
             )
-        return TensorDict(fields, batch_size=[b], device=self.device)
+        return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
@@ -418,6 +436,20 @@ class HierarchicalExecutor:
         self._action = state["action"].to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _shift_left(x: torch.Tensor, fill=False) -> torch.Tensor:
+    """``out[:, k] = x[:, k + 1]``; the last column gets ``fill``."""
+    out = torch.full_like(x, fill)
+    out[:, :-1] = x[:, 1:]
+    return out
+
+
+def _shift_right(x: torch.Tensor, fill=False) -> torch.Tensor:
+    """``out[:, k] = x[:, k - 1]``; the first column gets ``fill``."""
+    out = torch.full_like(x, fill)
+    out[:, 1:] = x[:, :-1]
+    return out
 
 
 class ExecutorStats:

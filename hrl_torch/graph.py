@@ -419,6 +419,9 @@ class TaskGraph(nn.Module):
         self.register_buffer("inst_depth", torch.tensor(inst_depth, **as_long), persistent=False)
         self.register_buffer("inst_children", inst_children, persistent=False)
         self.register_buffer(
+            "inst_is_primitive", self.node_is_primitive[self.inst_node], persistent=False
+        )
+        self.register_buffer(
             "child_valid",
             torch.arange(width)[None, :] < self.node_n_children[:, None],
             persistent=False,

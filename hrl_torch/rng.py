@@ -74,18 +74,32 @@ class BatchRNG:
         """Number of rows ``B``."""
         return self._row_key.shape[0]
 
-    def _bits(self, extra: int) -> torch.Tensor:
-        """Fresh 32-bit integers of shape ``[B]`` or ``[B, extra]``."""
-        base = _mix32_int(self.counter * 0x9E3779B1 + 0x7F4A7C15)
-        self.counter += 1
+    def _bits(self, extra: int, counter: int | None = None) -> torch.Tensor:
+        """32-bit integers of shape ``[B]`` or ``[B, extra]`` for draw number ``counter``.
+
+        Without ``counter`` the next draw is taken and the counter advances.
+        """
+        if counter is None:
+            counter = self.counter
+            self.counter += 1
+        base = _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
         if extra == 0:
             return mix32(self._row_key ^ base)
         cols = mix32(torch.arange(extra, dtype=torch.int64, device=self.device) + base)
         return mix32(self._row_key[:, None] ^ cols[None, :])
 
-    def uniform(self, extra: int = 0) -> torch.Tensor:
-        """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``)."""
-        return (self._bits(extra) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+    def uniform(self, extra: int = 0, counter: int | None = None) -> torch.Tensor:
+        """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).
+
+        ``counter`` reads a given draw number instead of the next one (see ``reserve``).
+        """
+        return (self._bits(extra, counter) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+
+    def reserve(self, n: int) -> int:
+        """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
+        first = self.counter
+        self.counter += n
+        return first
 
     def integers(self, high: torch.Tensor | int, extra: int = 0) -> torch.Tensor:
         """Integers uniform in ``[0, high)``; ``high`` may be a per-row tensor of shape ``[B]``."""

@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from hrl_torch.graph import TaskGraph
+from hrl_torch.ops import lookup
 
 
 class TableLayout(nn.Module):
@@ -50,6 +51,7 @@ class TableLayout(nn.Module):
         self.register_buffer(
             "table_n_children", graph.node_n_children[table_node], persistent=False
         )
+        self.register_buffer("table_child_valid", table_children >= 0, persistent=False)
         height = graph.node_height[table_node]
         self.groups = [(height == h).nonzero().squeeze(1) for h in range(int(height.max()) + 1)]
         self.n_tables = int(table_node.shape[0])
@@ -67,6 +69,10 @@ class TableLayout(nn.Module):
 class TableBank(nn.Module):
     """One kind of table for all table nodes and all ``P`` learners, stored flat.
 
+    ``store`` holds the ``P * total`` entries followed by one *sentinel* entry that stays 0:
+    reads and writes of masked rows are aimed at it, so a masked read is a single
+    ``index_select``.
+
     Args:
         n_learners: population size ``P``.
         n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
@@ -80,34 +86,43 @@ class TableBank(nn.Module):
         super().__init__()
         sizes = n_states.long() * n_cols.long()
         offset = torch.cumsum(sizes, 0) - sizes
-        self.total = int(sizes.sum())
+        self.total = max(int(sizes.sum()), 1)
         self.n_learners = n_learners
+        self.sentinel = n_learners * self.total
         self.register_buffer("offset", offset, persistent=False)
         self.register_buffer("n_cols", n_cols.long(), persistent=False)
-        self.register_buffer("data", torch.full((n_learners, max(self.total, 1)), float(init)))
+        store = torch.full((self.sentinel + 1,), float(init))
+        store[-1] = 0.0
+        self.register_buffer("store", store)
         self._count = torch.zeros(0)
         self._sum = torch.zeros(0)
+
+    @property
+    def data(self) -> torch.Tensor:
+        """The tables as ``[P, total]`` (a view of ``store``)."""
+        return self.store[: self.sentinel].view(self.n_learners, self.total)
 
     def index(
         self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, col: torch.Tensor
     ) -> torch.Tensor:
-        """Flat indices into ``data.view(-1)``; all arguments broadcast together."""
-        return learner * self.data.shape[1] + self.offset[table] + state * self.n_cols[table] + col
+        """Flat indices into ``store``; all arguments broadcast together."""
+        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
+        return learner * self.total + offset + state * n_cols + col
 
     def row_index(
         self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, width: int
     ) -> torch.Tensor:
         """Flat indices of whole rows: shape ``learner.shape + (width,)``."""
-        cols = torch.arange(width, device=self.data.device)
-        base = learner * self.data.shape[1] + self.offset[table] + state * self.n_cols[table]
+        cols = torch.arange(width, device=self.store.device)
+        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
+        base = learner * self.total + offset + state * n_cols
         return base.unsqueeze(-1) + cols
 
     def read(self, flat_index: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
         """Values at flat indices; entries where ``valid`` is False read as 0."""
-        if valid is None:
-            return self.data.view(-1)[flat_index]
-        safe = torch.where(valid, flat_index, torch.zeros_like(flat_index))
-        return torch.where(valid, self.data.view(-1)[safe], torch.zeros((), device=safe.device))
+        if valid is not None:
+            flat_index = torch.where(valid, flat_index, self.sentinel)
+        return self.store.index_select(0, flat_index.reshape(-1)).view(flat_index.shape)
 
     def view(self, table: int, learner: int = 0) -> torch.Tensor:
         """The ``[n_states, n_cols]`` table of one node and learner (a view, for inspection)."""
@@ -129,17 +144,17 @@ class TableBank(nn.Module):
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
         Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
         """
-        flat = self.data.view(-1)
+        flat = self.store
         if self._count.shape != flat.shape or self._count.device != flat.device:
             self._count = torch.zeros_like(flat)
             self._sum = torch.zeros_like(flat)
         weight = mask.to(flat.dtype)
-        index = torch.where(mask, flat_index, torch.zeros_like(flat_index))
+        index = torch.where(mask, flat_index, self.sentinel)  # masked rows hit the sentinel
         self._count.index_add_(0, index, weight)
         self._sum.index_add_(0, index, weight * torch.nan_to_num(target))
-        n = self._count[index]
-        keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W
-        mean = self._sum[index] / n.clamp_min(1.0)
-        flat[index] = keep * flat[index] + (1.0 - keep) * mean
-        self._count[index] = 0.0
-        self._sum[index] = 0.0
+        n = self._count.index_select(0, index)
+        keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
+        mean = self._sum.index_select(0, index) / n.clamp_min(1.0)
+        flat.index_put_((index,), keep * flat.index_select(0, index) + (1.0 - keep) * mean)
+        self._count.index_fill_(0, index, 0.0)
+        self._sum.index_fill_(0, index, 0.0)

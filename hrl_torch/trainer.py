@@ -74,6 +74,9 @@ class Trainer:
         eval_env: batched env with ``P * eval_episodes`` rows for greedy evaluation.
         executor_config: guard and all-states options.
         logger: where metrics go (``None``: nowhere).
+        evaluator: replaces the episodic evaluation, e.g. a
+            ``hrl_torch.continuing.ThroughputEvaluator`` for continuing tasks; it also sees
+            every training step (``observe``) and adds its metrics at each log (``flush``).
     """
 
     def __init__(
@@ -86,8 +89,10 @@ class Trainer:
         eval_env=None,
         executor_config: ExecutorConfig | None = None,
         logger: RunLogger | None = None,
+        evaluator=None,
     ) -> None:
         self.env, self.graph, self.learner = env, graph, learner
+        self.evaluator = evaluator
         self.config = config or TrainConfig()
         self.executor_config = executor_config or ExecutorConfig()
         self.eval_env = eval_env
@@ -127,6 +132,8 @@ class Trainer:
         batch = self.executor.observe(td, ctx)
         self.learner.update(batch, ctx, self.step)
         self._episodes.add(td)
+        if self.evaluator is not None:  # continuing tasks: training throughput
+            self.evaluator.observe(td, self.rows, self.P)
         self.step += self.E
         self.ctx = ctx
         self.action = self.executor.act(ctx, self.policy, self.step)
@@ -184,6 +191,8 @@ class Trainer:
         streams restart), so evaluation is a function of the tables alone; with one eval seed
         for all learners (as ``run_experiment`` sets up) every learner meets the same episodes.
         """
+        if self.evaluator is not None:  # continuing tasks: greedy throughput
+            return self.evaluator.evaluate(self)
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
@@ -236,15 +245,16 @@ class Trainer:
             if threshold is not None and self.first_hit[p] is None and v >= threshold:
                 self.first_hit[p] = self.step
         if self.logger:
-            self.logger.log(
-                self.step, {"charts/eval_return": values, "charts/eval_success": self._last_success}
-            )
+            tags = getattr(self.evaluator, "tags", ("charts/eval_return", "charts/eval_success"))
+            self.logger.log(self.step, {tags[0]: values, tags[1]: self._last_success})
 
     def _log_training(self) -> None:
+        extra = self.evaluator.flush() if self.evaluator is not None else {}
         if not self.logger:
             return
         g = self.graph
         scalars = self._episodes.flush()
+        scalars.update(extra)
         scalars["perf/env_steps_per_s"] = [
             self.step * self.P / max(self.train_seconds, 1e-9)
         ] * self.P

@@ -18,6 +18,7 @@ from torch import nn
 
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
+from hrl_torch.ops import columns, lookup
 from hrl_torch.rng import BatchRNG
 from hrl_torch.tables import TableBank, TableLayout
 
@@ -94,7 +95,7 @@ class TabularLearner(Learner):
 
     def table_states(self, ctx: StepContext, tables: torch.Tensor) -> torch.Tensor:
         """Abstract states ``[B, n]`` of the table nodes ``tables [n]``."""
-        return ctx.abstract[:, self.layout.table_node[tables]]
+        return columns(ctx.abstract, lookup(self.layout.table_node, tables))
 
     def table_rows(
         self, bank: TableBank, ctx: StepContext, tables: torch.Tensor, available: torch.Tensor
@@ -108,13 +109,26 @@ class TabularLearner(Learner):
         )
         return bank.read(idx, available)
 
+    def instance_rows(
+        self, bank: TableBank, ctx: StepContext, inst: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rows ``[B, A]`` of ``bank`` for the instances ``inst [B]`` and their tables ``[B]``.
+
+        Padding slots (beyond a node's children) read 0.
+        """
+        lay = self.layout
+        table = lookup(lay.inst_table, inst.clamp_min(0))
+        state = ctx.abstract.gather(1, lookup(lay.table_node, table)[:, None]).squeeze(1)
+        idx = bank.row_index(ctx.learner, table, state, lay.max_children)
+        return bank.read(idx, lookup(lay.table_child_valid, table)), table
+
 
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.
 
-    Every step draws one block of uniforms ``[B, levels, A + 2]`` up front (``new_step``), and
-    the ``k``-th push of a step reads slice ``k``: a row's random stream never depends on how
-    many pushes other rows needed, so a population equals separate runs.
+    Every step reserves one draw number per push level (``new_step``), and the ``k``-th push of
+    a step reads draw ``k``: a row's random stream never depends on how many pushes other rows
+    needed, so a population equals separate runs.
 
     Args:
         learner: provides ``action_values``.
@@ -126,17 +140,16 @@ class ValuePolicy:
         self.learner = learner
         self.exploration = exploration
         self.rng = rng
-        self._u: torch.Tensor | None = None
+        self._first = 0
 
     def new_step(self) -> None:
-        """Draw this step's uniforms for every row and push level."""
-        g = self.learner.graph
-        width = uniforms_needed(g.max_children)
-        self._u = self.rng.uniform(g.max_levels * width).view(-1, g.max_levels, width)
+        """Reserve this step's draws, one per push level."""
+        self._first = self.rng.reserve(self.learner.graph.max_levels)
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(child slot [B], greedy flag [B])`` for the ``push``-th push of the step."""
         q = self.learner.action_values(inst, ctx)
-        return self.exploration.select(q, available, self._u[:, push], step)
+        u = self.rng.uniform(uniforms_needed(q.shape[-1]), counter=self._first + push)
+        return self.exploration.select(q, available, u, step)

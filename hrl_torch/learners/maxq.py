@@ -25,6 +25,7 @@ import torch
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
+from hrl_torch.ops import columns, lookup
 
 
 class MaxQLearner(TabularLearner):
@@ -69,31 +70,28 @@ class MaxQLearner(TabularLearner):
         value_int = torch.zeros_like(value)
         prims = lay.groups[0]
         idx = self.V.index(ctx.learner[:, None], prims[None, :], self.table_states(ctx, prims), 0)
-        value[:, prims] = self.V.read(idx)
-        value_int[:, prims] = value[:, prims]
+        value.index_copy_(1, prims, self.V.read(idx))
+        value_int.index_copy_(1, prims, self.V.read(idx))
         for ids in lay.groups[1:]:
-            nodes = lay.table_node[ids]
-            available = ctx.available[:, nodes]
-            child_v = value[:, lay.table_children[ids].clamp_min(0)]
+            nodes = lookup(lay.table_node, ids)
+            available = columns(ctx.available, nodes)
+            child_v = columns(value, lookup(lay.table_children, ids).clamp_min(0))
             c = self.table_rows(self.C, ctx, ids, available)
             c_int = self.table_rows(self.C_int, ctx, ids, available) if self.internal else c
             q_int = child_v + c_int
             best = masked_argmax(q_int, available).unsqueeze(-1)
-            dead = ctx.blocked[:, nodes] | ~available.any(-1)
-            zero = torch.zeros((), device=value.device)
-            value[:, ids] = torch.where(dead, zero, (child_v + c).gather(-1, best).squeeze(-1))
-            value_int[:, ids] = torch.where(dead, zero, q_int.gather(-1, best).squeeze(-1))
+            dead = columns(ctx.blocked, nodes) | ~available.any(-1)
+            external = (child_v + c).gather(-1, best)[..., 0]
+            value.index_copy_(1, ids, torch.where(dead, 0.0, external))
+            value_int.index_copy_(1, ids, torch.where(dead, 0.0, q_int.gather(-1, best)[..., 0]))
         ctx.values["V"] = value
         ctx.values["V_int"] = value_int
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``Q~(i, s, .) = V(., s) + C~(i, s, .)`` for the instances ``inst [B]``."""
-        lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
-        child_v = ctx.values["V"].gather(1, lay.table_children[table].clamp_min(0))
-        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
-        idx = self.C_int.row_index(ctx.learner, table, state, lay.max_children)
-        return child_v + self.C_int.read(idx, lay.table_children[table] >= 0)
+        c_int, table = self.instance_rows(self.C_int, ctx, inst)
+        children = lookup(self.layout.table_children, table).clamp_min(0)
+        return ctx.values["V"].gather(1, children) + c_int
 
     # ------------------------------------------------------------------ updates
     @staticmethod
@@ -108,7 +106,7 @@ class MaxQLearner(TabularLearner):
         alpha = self.alpha(step)
         lay = self.layout
         learner = batch["learner"][:, None].expand_as(batch["inst"])
-        table = lay.inst_table[batch["inst"].clamp_min(0)]
+        table = lookup(lay.inst_table, batch["inst"].clamp_min(0))
         terminal = batch["terminal"]
         valid = batch["valid"] & (batch["child_done"] | terminal)
         v_next = ctx.values["V"].gather(1, table)
@@ -148,6 +146,6 @@ class MaxQLearner(TabularLearner):
             if self.internal:
                 self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
 
-        prim_table = lay.inst_table[batch["prim_inst"].clamp_min(0)]
+        prim_table = lookup(lay.inst_table, batch["prim_inst"].clamp_min(0))
         pidx = self.V.index(batch["learner"], prim_table, batch["prim_state"], 0)
         self.V.update(pidx, batch["prim_reward"], alpha, batch["prim_valid"])

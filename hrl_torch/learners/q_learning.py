@@ -17,6 +17,7 @@ import torch
 
 from hrl_torch.graph import StepContext
 from hrl_torch.learners.base import TabularLearner
+from hrl_torch.ops import columns, lookup
 
 
 class SMDPQLearner(TabularLearner):
@@ -42,28 +43,24 @@ class SMDPQLearner(TabularLearner):
         """``max_a Q(i, s, a)`` over available children for every non-primitive table node."""
         lay = self.layout
         ids = self.composite
-        nodes = lay.table_node[ids]
-        available = ctx.available[:, nodes]
+        nodes = lookup(lay.table_node, ids)
+        available = columns(ctx.available, nodes)
         q = self.table_rows(self.Q, ctx, ids, available)
-        best = torch.where(available, q, torch.full_like(q, -torch.inf)).amax(-1)
-        dead = ctx.blocked[:, nodes] | ~available.any(-1)
+        best = torch.where(available, q, -torch.inf).amax(-1)
+        dead = columns(ctx.blocked, nodes) | ~available.any(-1)
         value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
-        value[:, ids] = torch.where(dead, 0.0, best)
+        value.index_copy_(1, ids, torch.where(dead, 0.0, best))
         ctx.values["V"] = value
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``Q(i, s, .)`` for the instances ``inst [B]``."""
-        lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
-        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
-        idx = self.Q.row_index(ctx.learner, table, state, lay.max_children)
-        return self.Q.read(idx, lay.table_children[table] >= 0)
+        return self.instance_rows(self.Q, ctx, inst)[0]
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """One SMDP Q-learning step for every finished child in ``batch``."""
         lay = self.layout
         learner = batch["learner"][:, None].expand_as(batch["inst"])
-        table = lay.inst_table[batch["inst"].clamp_min(0)]
+        table = lookup(lay.inst_table, batch["inst"].clamp_min(0))
         terminal = batch["terminal"]
         valid = batch["valid"] & (batch["child_done"] | terminal)
         discount = self.gamma ** batch["duration"]

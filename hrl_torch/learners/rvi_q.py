@@ -1,0 +1,96 @@
+"""RVI Q-learning (Abounadi, Bertsekas and Borkar 2001): flat average-reward Q-learning.
+
+On a flat graph (a root over the primitive actions, abstraction = the full state)::
+
+    Q(s, a) <- (1-alpha) Q(s, a) + alpha [r - f(Q) t + max_a' Q(s', a')]
+
+with ``t = 1`` in discrete time and the duration ``tau`` in continuous time (the SMDP version,
+``continuous=True``). The reference function is the mean of the whole table,
+``f(Q) = sum_{s,a} Q(s, a) / (|S| |A|)`` (one of Abounadi et al.'s choices: ``f(e) = 1``,
+``f(Q + c e) = f(Q) + c``); it is the learner's gain estimate. We keep the table's sum exactly
+(per learner, float64) from the change of every updated entry, so ``f`` costs nothing per step
+even on the 1,347,192-state AGV table.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from hrl_torch.exploration import Schedule
+from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.learners.base import TabularLearner
+
+
+class RVIQLearner(TabularLearner):
+    """RVI Q-learning on a flat graph for a population of ``P`` learners.
+
+    Args:
+        graph: a flat task graph (the root's children are all primitives).
+        n_learners: population size ``P``.
+        alpha: step size (number or schedule).
+        continuous: SMDP (continuous-time) version: the reference is charged per unit of time.
+        init: initial action values.
+    """
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        alpha: float | Schedule = 0.1,
+        continuous: bool = False,
+        init: float = 0.0,
+    ) -> None:
+        super().__init__(graph, n_learners, alpha, 1.0, per_instance=False)
+        kids = graph.node_children[graph.root, : int(graph.node_n_children[graph.root])]
+        if not bool(graph.node_is_primitive[kids].all()):
+            raise GraphError("RVI Q-learning needs a flat graph: every child of the root primitive")
+        self.continuous = continuous
+        self.Q = self.completion_bank(init)
+        self.n_entries = self.Q.total
+        self.register_buffer(
+            "q_sum", torch.full((n_learners,), float(init) * self.n_entries, dtype=torch.float64)
+        )
+
+    @property
+    def gain(self) -> torch.Tensor:
+        """``f(Q)``, the mean action value, per learner ``[P]``."""
+        return (self.q_sum / self.n_entries).float()
+
+    def evaluate(self, ctx: StepContext) -> None:
+        """``max_a Q(s, a)`` at the root."""
+        lay = self.layout
+        root = torch.tensor([self.graph.root], device=ctx.abstract.device)
+        available = ctx.available[:, root]
+        q = self.table_rows(self.Q, ctx, root, available)
+        best = torch.where(available, q, -torch.inf).amax(-1)
+        value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
+        value[:, root] = torch.where(available.any(-1), best, 0.0)
+        ctx.values["V"] = value
+
+    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
+        """``Q(s, .)``."""
+        lay = self.layout
+        table = lay.inst_table[inst.clamp_min(0)]
+        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
+        idx = self.Q.row_index(ctx.learner, table, state, lay.max_children)
+        return self.Q.read(idx, lay.table_children[table] >= 0)
+
+    def update(self, batch, ctx: StepContext, step: int) -> None:
+        """One RVI Q-learning step for every primitive step (level 0 of the flat stack)."""
+        lay = self.layout
+        valid = batch["valid"][:, 0] & (batch["child_done"][:, 0] | batch["terminal"][:, 0])
+        learner = batch["learner"]
+        table = lay.inst_table[batch["inst"][:, 0].clamp_min(0)]
+        t = batch["duration"][:, 0] if self.continuous else batch["steps"][:, 0].float()
+        v_next = ctx.values["V"].gather(1, table[:, None]).squeeze(1)
+        v_next = torch.where(batch["terminal"][:, 0], torch.zeros_like(v_next), v_next)
+        target = batch["reward"][:, 0] - self.gain[learner] * t + v_next
+        idx = self.Q.index(learner, table, batch["state"][:, 0], batch["child"][:, 0])
+        old = self.Q.read(idx, valid)
+        self.record_td(learner, batch["node"][:, 0], target - old, valid)
+        self.Q.update(idx, target, self.alpha(step), valid)
+        # keep sum(Q) exact: every updated entry's change once, however many rows hit it
+        change = self.Q.read(idx, valid) - old
+        safe = torch.where(valid, idx, -1)
+        _, inverse, counts = torch.unique(safe, return_inverse=True, return_counts=True)
+        self.q_sum.index_add_(0, learner, (change / counts[inverse]).double())

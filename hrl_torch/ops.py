@@ -1,0 +1,15 @@
+"""Small tensor helpers for the hot path (CPU advanced indexing is several times slower)."""
+
+from __future__ import annotations
+
+import torch
+
+
+def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``table[index]`` (rows of ``table``) for any-shaped ``index``, via ``index_select``."""
+    return table.index_select(0, index.reshape(-1)).view(*index.shape, *table.shape[1:])
+
+
+def columns(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``x[:, index]`` for ``x [B, N, ...]`` and any-shaped ``index`` into ``N``."""
+    return x.index_select(1, index.reshape(-1)).view(x.shape[0], *index.shape, *x.shape[2:])
