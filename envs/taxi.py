@@ -163,13 +163,14 @@ class TaxiEnv(BatchedEnv):
         self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
 
     def _reset_rows(self, mask: torch.Tensor) -> None:
-        fresh = self.starts[self.rng.integers(len(self.starts))]
+        fresh = self.starts.index_select(0, self.rng.integers(len(self.starts)))
         self.state = torch.where(mask, fresh, self.state)
 
     def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        reward = self.reward_table[self.state, action]
-        terminated = self.terminal_table[self.state, action]
-        self.state = self.next_state[self.state, action]
+        flat = self.state * N_ACTIONS + action  # index_select on flat tables: fast on CPU
+        reward = self.reward_table.view(-1).index_select(0, flat)
+        terminated = self.terminal_table.view(-1).index_select(0, flat)
+        self.state = self.next_state.view(-1).index_select(0, flat)
         return reward, torch.ones_like(reward), terminated
 
     def _observe(self) -> dict[str, torch.Tensor]:

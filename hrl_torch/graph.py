@@ -21,6 +21,8 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from hrl_torch.ops import columns
+
 ObsFn = Callable[[TensorDict], torch.Tensor]
 
 
@@ -239,6 +241,16 @@ class Primitive(nn.Module):
 Node = Subtask | Primitive
 
 
+def _overrides(node: Node, method: str) -> bool:
+    """Whether ``node`` defines ``method`` itself (subclass override or a callable given)."""
+    base = Primitive if node.is_primitive else Subtask
+    if getattr(type(node), method) is not getattr(base, method):
+        return True
+    if node.is_primitive:
+        return method == "abstract" and node._abstract is not None
+    return node._fns.get(method) is not None
+
+
 @dataclass
 class StepContext:
     """What the graph knows about one batch of observations, computed once per step.
@@ -434,11 +446,24 @@ class TaskGraph(nn.Module):
             and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
         ]
         self.check_ranges = True
+        # which nodes need a call per step (defaults are constant columns)
+        self._abstract_nodes = self._custom(lambda x: x.n_states > 1 or _overrides(x, "abstract"))
+        self._terminating_nodes = self._custom(
+            lambda x: not x.is_primitive and _overrides(x, "terminated")
+        )
+        self._initiable_nodes = self._custom(
+            lambda x: not x.is_primitive and _overrides(x, "initiable")
+        )
         self.action_dim = max((x.action_dim for x in self.nodes if x.is_primitive), default=0)
         self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
         self.max_features = max((x.n_features for x in self.nodes), default=0)
         self.memory_nodes = [k for k, x in enumerate(self.nodes) if x.memory_size]
         self.max_memory = max((x.memory_size for x in self.nodes), default=0)
+
+    def _custom(self, pred) -> tuple[list[int], list[int], torch.Tensor]:
+        """(node indices where ``pred`` holds, all node indices, the first as a tensor)."""
+        ks = [k for k, x in enumerate(self.nodes) if pred(x)]
+        return ks, list(range(self.n_nodes)), torch.tensor(ks, dtype=torch.long)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -480,7 +505,9 @@ class TaskGraph(nn.Module):
             learner = torch.zeros(b, dtype=torch.long, device=device)
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
-        abstract = torch.stack([node.abstract(obs).long() for node in self.nodes], dim=1)
+        abstract = self._node_columns(
+            self._abstract_nodes, torch.long, 0, b, device, lambda k: self.nodes[k].abstract(obs)
+        )
         if self.check_ranges:
             bad = (abstract < 0) | (abstract >= self.node_n_states)
             if bool(bad.any()):
@@ -489,20 +516,25 @@ class TaskGraph(nn.Module):
                     f"{self.names[col]!r}.abstract returned {int(abstract[row, col])}, outside "
                     f"[0, {self.nodes[col].n_states}) (env row {row})"
                 )
-        false = torch.zeros(b, dtype=torch.bool, device=device)
-        terminated = torch.stack(
-            [
-                false if x.is_primitive else self._call(x.terminated, obs, memory, k).bool()
-                for k, x in enumerate(self.nodes)
-            ],
-            dim=1,
+        terminated = self._node_columns(
+            self._terminating_nodes,
+            torch.bool,
+            False,
+            b,
+            device,
+            lambda k: self._call(self.nodes[k].terminated, obs, memory, k),
         )
-        initiable = torch.stack(
-            [~false if x.is_primitive else x.initiable(obs).bool() for x in self.nodes], dim=1
+        initiable = self._node_columns(
+            self._initiable_nodes,
+            torch.bool,
+            True,
+            b,
+            device,
+            lambda k: self.nodes[k].initiable(obs),
         )
         blocked = terminated & ~self.node_event
         child_ok = initiable & ~blocked  # a child that would end at once is not available
-        available = child_ok[:, self.node_children.clamp_min(0)] & self.child_valid
+        available = columns(child_ok, self.node_children.clamp_min(0)) & self.child_valid
         for k, x in enumerate(self.nodes):
             if x.is_primitive:
                 continue
@@ -516,6 +548,15 @@ class TaskGraph(nn.Module):
                 node = self.nodes[k]
                 features[:, k, : node.n_features] = self._call(node.features, obs, memory, k)
         return StepContext(obs, learner, abstract, terminated, blocked, available, features)
+
+    @staticmethod
+    def _node_columns(nodes, dtype, default, b, device, value_of) -> torch.Tensor:
+        """``[B, n_nodes]`` filled with ``default`` except the columns of ``nodes``."""
+        out = torch.full((b, len(nodes[1])), default, dtype=dtype, device=device)
+        if nodes[0]:
+            values = torch.stack([value_of(k).to(dtype) for k in nodes[0]], dim=1)
+            out.index_copy_(1, nodes[2].to(device), values)
+        return out
 
     def _call(self, method, obs: TensorDict, memory: torch.Tensor | None, k: int):
         """``method(obs)``, or ``method(obs, memory of node k)`` for a memory node."""
