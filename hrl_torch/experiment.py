@@ -61,6 +61,9 @@ class DomainSpec:
         eval_seed: seed of the common evaluation episodes (the same for every learner).
         reference: named reference values drawn on the plots (e.g. the optimal return).
         description: one line for ``hrl-torch list``.
+        make_evaluator: ``(train_config) -> evaluator`` replacing the episodic evaluation
+            (continuing tasks: ``hrl_torch.continuing.ThroughputEvaluator``); the eval env then
+            has ``eval_episodes`` rows per learner.
     """
 
     name: str
@@ -70,6 +73,7 @@ class DomainSpec:
     eval_seed: int = 1_000_003
     reference: dict[str, float] = field(default_factory=dict)
     description: str = ""
+    make_evaluator: Callable[[TrainConfig], object] | None = None
 
 
 @dataclass
@@ -130,8 +134,17 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         )
     graph = spec.make_graph()
     learner = spec.make_learner(graph, len(seeds))
+    evaluator = domain.make_evaluator(config) if domain.make_evaluator else None
     return Trainer(
-        env, graph, learner, spec.make_exploration(config), config, eval_env, spec.executor, logger
+        env,
+        graph,
+        learner,
+        spec.make_exploration(config),
+        config,
+        eval_env,
+        spec.executor,
+        logger,
+        evaluator,
     )
 
 
@@ -159,9 +172,12 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start
     logger.close()
+    metrics = ["charts/eval_return", "charts/episode_return"]
+    if trainer.evaluator is not None:  # continuing tasks
+        metrics = trainer.evaluator.metrics
     plots = plot_curves(
         run_dir / "progress.csv",
-        ["charts/eval_return", "charts/episode_return"],
+        metrics,
         run_dir,
         title=f"{domain.name} / {algo}",
         reference=domain.reference,
@@ -182,11 +198,13 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
                 "seed": s,
                 "final_eval_return": result.final_eval[k],
                 "final_eval_success": result.final_success[k],
+                "final_eval_steps": result.final_steps[k] if result.final_steps else None,
                 "steps_to_threshold": result.steps_to_threshold[k],
-                "env_steps": result.env_steps_per_learner,
+                "env_steps": result.env_steps[k],
                 # all seeds train together: each seed's share of the population's time
                 "wall_seconds": round(result.train_seconds, 3),
                 "env_steps_per_second": round(result.env_steps_per_second / len(opts.seeds), 1),
+                **(trainer.evaluator.summary(k) if trainer.evaluator is not None else {}),
             }
             for k, s in enumerate(opts.seeds)
         ],

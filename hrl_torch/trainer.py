@@ -37,6 +37,8 @@ class TrainConfig:
         threshold: record the first evaluation at which a learner's return reaches this.
         checkpoint_every: env steps per learner between checkpoints (0: only at the end).
         progress: show a progress bar.
+        success_key: observation field that marks a successful episode end (``terminated``
+            by default; e.g. ``success`` where some terminations are failures).
     """
 
     steps: int = 50_000
@@ -47,19 +49,28 @@ class TrainConfig:
     threshold: float | None = None
     checkpoint_every: int = 0
     progress: bool = True
+    success_key: str = "terminated"
 
 
 @dataclass
 class TrainResult:
-    """Per-learner outcome of ``Trainer.train``."""
+    """Per-learner outcome of ``Trainer.train``.
+
+    Step counts: ``env_steps_per_learner`` (and the curve's x axis, budgets and schedules) is the
+    batched clock, ``E`` per batched step; ``env_steps`` and ``steps_to_threshold`` count the
+    env steps each learner really took (a row being auto-reset after an episode takes none).
+    """
 
     final_eval: list[float]
     final_success: list[float]
     steps_to_threshold: list[int | None]
-    env_steps_per_learner: int
+    env_steps_per_learner: int  # the schedule clock: batched steps x E
+
     train_seconds: float
     env_steps_per_second: float
     curve: list[tuple[int, list[float]]] = field(default_factory=list)
+    final_steps: list[float] = field(default_factory=list)
+    env_steps: list[int] = field(default_factory=list)  # real env steps per learner
 
 
 class Trainer:
@@ -104,15 +115,30 @@ class Trainer:
             graph, env.batch_size, self.E, learner.gamma, self.executor_config
         )
         self.rows = env.learner_of_row()
-        self.policy = ValuePolicy(learner, exploration, BatchRNG(env.seeds, self.E, "explore"))
+        self.policy = self._make_policy(exploration, BatchRNG(env.seeds, self.E, "explore"))
         self.step = 0  # env steps per learner
         self.action: torch.Tensor | None = None
         self.ctx = None
         self.train_seconds = 0.0
-        self._episodes = _EpisodeTracker(env.batch_size, self.P, self.E)
+        self._episodes = _EpisodeTracker(env.batch_size, self.P, self.E, self.config.success_key)
         self.curve: list[tuple[int, list[float]]] = []
         self.first_hit: list[int | None] = [None] * self.P
-        self._next = {"log": 0, "eval": 0, "ckpt": 0}
+        # env steps each learner really took (rows being auto-reset take none)
+        self.real_steps = torch.zeros(self.P, dtype=torch.float64)
+        self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
+
+    # --- hook (policy-gradient and hybrid learners): a learner may supply its own policy ---
+    def _make_policy(self, exploration: Exploration, rng: BatchRNG):
+        """``learner.make_policy(exploration, rng)`` if the learner has one, else ValuePolicy.
+
+        ``Greedy`` exploration asks for the evaluation policy (PG nodes act on their modes).
+        """
+        make = getattr(self.learner, "make_policy", None)
+        if make is not None:
+            return make(exploration, rng)
+        return ValuePolicy(self.learner, exploration, rng)
+
+    # --- end of hook ---
 
     # ------------------------------------------------------------------ stepping
     def _begin(self) -> None:
@@ -132,6 +158,7 @@ class Trainer:
         batch = self.executor.observe(td, ctx)
         self.learner.update(batch, ctx, self.step)
         self._episodes.add(td)
+        self.real_steps.index_add_(0, self.rows.cpu(), (~td["is_init"]).cpu().double())
         if self.evaluator is not None:  # continuing tasks: training throughput
             self.evaluator.observe(td, self.rows, self.P)
         self.step += self.E
@@ -166,13 +193,14 @@ class Trainer:
                 self._next["ckpt"] = self.step + cfg.checkpoint_every
         bar.close()
         final, success = [float("nan")] * self.P, [float("nan")] * self.P
+        steps = [float("nan")] * self.P
         if self.eval_env is not None:
             if not self.curve or self.curve[-1][0] != self.step:
                 self._evaluate_and_log()
-            final, success = self.curve[-1][1], self._last_success
+            final, success, steps = self.curve[-1][1], self._last_success, self._last_steps
         if run_dir is not None:
             self.save(f"{run_dir}/checkpoint.pt")
-        sps = self.step * self.P / max(self.train_seconds, 1e-9)
+        sps = float(self.real_steps.sum()) / max(self.train_seconds, 1e-9)
         return TrainResult(
             final,
             success,
@@ -181,17 +209,22 @@ class Trainer:
             self.train_seconds,
             sps,
             list(self.curve),
+            steps,
+            [int(x) for x in self.real_steps],
         )
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Greedy episodes on ``eval_env``: mean return and success rate per learner ``[P]``.
 
+        (The mean episode length per learner is kept in ``last_eval_steps``.)
+
         Every evaluation plays the same episodes (the eval env's and the tie-breaking random
         streams restart), so evaluation is a function of the tables alone; with one eval seed
         for all learners (as ``run_experiment`` sets up) every learner meets the same episodes.
         """
-        if self.evaluator is not None:  # continuing tasks: greedy throughput
+        if self.evaluator is not None:  # continuing tasks: greedy throughput, no episodes
+            self.last_eval_steps = torch.full((self.P,), float("nan"))
             return self.evaluator.evaluate(self)
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
@@ -204,7 +237,7 @@ class Trainer:
             self.learner.gamma,
             self.executor_config,
         )
-        policy = ValuePolicy(self.learner, Greedy(), self._eval_rng())
+        policy = self._make_policy(Greedy(), self._eval_rng())
         rows = env.learner_of_row()
         obs = env.reset()
         ctx = self.graph.context(obs, rows, executor.memory)
@@ -213,11 +246,13 @@ class Trainer:
         ret = torch.zeros(env.batch_size)
         success = torch.zeros(env.batch_size, dtype=torch.bool)
         finished = torch.zeros(env.batch_size, dtype=torch.bool)
+        length = torch.zeros(env.batch_size)
         for _ in range(cfg.eval_max_steps):
             td = env.step(action)
             ret += td["reward"].cpu() * ~finished
+            length += (~finished).float()
             ended = (td["terminated"] | td["truncated"]).cpu()
-            success |= td["terminated"].cpu() & ~finished
+            success |= (td[cfg.success_key] & td["terminated"]).cpu() & ~finished
             finished |= ended
             if bool(finished.all()):
                 break
@@ -226,6 +261,7 @@ class Trainer:
             executor.observe(td, ctx)
             action = executor.act(ctx, policy, self.step)
         n = env.envs_per_learner
+        self.last_eval_steps = length.view(-1, n).mean(1)
         return ret.view(-1, n).mean(1), success.float().view(-1, n).mean(1)
 
     def _eval_rng(self) -> BatchRNG:
@@ -239,11 +275,12 @@ class Trainer:
         mean, success = self.evaluate()
         values = mean.tolist()
         self._last_success = success.tolist()
+        self._last_steps = self.last_eval_steps.tolist()
         self.curve.append((self.step, values))
         threshold = self.config.threshold
         for p, v in enumerate(values):
             if threshold is not None and self.first_hit[p] is None and v >= threshold:
-                self.first_hit[p] = self.step
+                self.first_hit[p] = int(self.real_steps[p])
         if self.logger:
             tags = getattr(self.evaluator, "tags", ("charts/eval_return", "charts/eval_success"))
             self.logger.log(self.step, {tags[0]: values, tags[1]: self._last_success})
@@ -287,6 +324,7 @@ class Trainer:
             "episodes": self._episodes.state_dict(),
             "curve": [[s, list(v)] for s, v in self.curve],
             "first_hit": [-1 if h is None else h for h in self.first_hit],
+            "real_steps": self.real_steps.clone(),
             "next": dict(self._next),
         }
         if self.eval_env is not None:
@@ -320,6 +358,7 @@ class Trainer:
         self.train_seconds = float(state["train_seconds"])
         self.curve = [(int(s), [float(x) for x in v]) for s, v in state["curve"]]
         self.first_hit = [None if h < 0 else int(h) for h in state["first_hit"]]
+        self.real_steps = state["real_steps"].clone()
         self._next = {k: int(v) for k, v in state["next"].items()}
         if self.action is not None:
             self.ctx = None  # recomputed lazily: act() already ran before the save
@@ -340,7 +379,10 @@ def _ratio(num: torch.Tensor, den: torch.Tensor) -> list[float]:
 class _EpisodeTracker:
     """Returns, lengths and successes of finished training episodes, per learner."""
 
-    def __init__(self, batch_size: int, n_learners: int, envs_per_learner: int) -> None:
+    def __init__(
+        self, batch_size: int, n_learners: int, envs_per_learner: int, success_key: str
+    ) -> None:
+        self.success_key = success_key
         self.rows = torch.arange(batch_size) // envs_per_learner
         self.n_learners = n_learners
         self.ret = torch.zeros(batch_size)
@@ -353,7 +395,12 @@ class _EpisodeTracker:
         self.length += real.float()
         ended = ((td["terminated"] | td["truncated"]).cpu() & real).float()
         values = torch.stack(
-            [ended, self.ret * ended, self.length * ended, td["terminated"].cpu().float() * ended]
+            [
+                ended,
+                self.ret * ended,
+                self.length * ended,
+                (td[self.success_key] & td["terminated"]).cpu().float() * ended,
+            ]
         )
         self.sums.index_add_(1, self.rows, values)
         self.ret *= 1 - ended
