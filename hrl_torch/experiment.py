@@ -107,17 +107,22 @@ class RunOptions:
     tensorboard: bool = True
 
 
-def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
-    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
+def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
+    """The ``AlgoSpec`` of ``algo``; a clear ``KeyError`` for an unknown algorithm or backend."""
     if algo not in domain.algos:
         raise KeyError(
             f"{domain.name!r} has no algorithm {algo!r}; choose from {sorted(domain.algos)}"
         )
-    if opts.backend not in domain.backends:
+    if backend not in domain.backends:
         raise KeyError(
-            f"{domain.name!r} has no backend {opts.backend!r}; choose from {domain.backends}"
+            f"{domain.name!r} has no backend {backend!r}; choose from {domain.backends}"
         )
-    spec = domain.algos[algo]
+    return domain.algos[algo]
+
+
+def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
+    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
+    spec = check_choice(domain, algo, opts.backend)
     changes = {
         k: getattr(opts, k)
         for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
@@ -154,8 +159,8 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     Returns the run folder and the summary written to its ``summary.json``.
     """
     torch.set_num_threads(1)
+    spec = check_choice(domain, algo, opts.backend)  # before any folder is made
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
-    spec = domain.algos[algo]
     hparams = hparams_of(
         domain=domain.name,
         algo=algo,

@@ -41,7 +41,7 @@ class Linear:
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
         frac = min(max(step / max(self.steps, 1), 0.0), 1.0)
-        return self.start + frac * (self.end - self.start)
+        return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import torch
 
 def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """``table[index]`` (rows of ``table``) for any-shaped ``index``, via ``index_select``."""
-    return table.index_select(0, index.reshape(-1)).view(*index.shape, *table.shape[1:])
+    return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
 
 
 def columns(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

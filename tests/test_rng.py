@@ -1,0 +1,38 @@
+import torch
+
+from hrl_torch.rng import BatchRNG
+
+
+def test_a_learner_sees_the_same_stream_alone_or_in_a_population():
+    pop = BatchRNG([5, 9, 13], 4, "s")
+    alone = BatchRNG([9], 4, "s")
+    for _ in range(3):
+        assert torch.equal(pop.uniform(3)[4:8], alone.uniform(3))
+
+
+def test_streams_and_counters_differ_and_reserve_reads_fixed_draws():
+    a, b = BatchRNG([1], 1000, "x"), BatchRNG([1], 1000, "y")
+    ua, ub = a.uniform(), b.uniform()
+    assert not torch.equal(ua, ub)
+    assert 0.0 <= float(ua.min()) and float(ua.max()) < 1.0
+    first = a.reserve(3)
+    assert torch.equal(a.uniform(counter=first + 1), a.uniform(counter=first + 1))
+    assert a.counter == first + 3
+
+
+def test_uniforms_look_uniform_and_integers_stay_in_range():
+    u = BatchRNG([0], 100_000, "u").uniform()
+    assert abs(float(u.mean()) - 0.5) < 0.005
+    hist = torch.histc(u, bins=10, min=0, max=1)
+    assert float(hist.min()) > 9_500
+    ints = BatchRNG([0], 10_000, "i").integers(torch.full((10_000,), 7))
+    assert int(ints.min()) == 0 and int(ints.max()) == 6
+
+
+def test_counter_round_trips_through_state_dict():
+    r = BatchRNG([3], 5, "c")
+    r.uniform()
+    state = r.state_dict()
+    x = r.uniform()
+    r.load_state_dict(state)
+    assert torch.equal(r.uniform(), x)
