@@ -280,8 +280,13 @@ class HierarchicalExecutor:
         return self._action
 
     # ------------------------------------------------------------------ observing
-    def observe(self, step_td: TensorDict, ctx: StepContext) -> TensorDict:
-        """Account one env step, pop what ended and return the finished SMDP transitions."""
+    def observe(
+        self, step_td: TensorDict, ctx: StepContext, transitions: bool = True
+    ) -> TensorDict | None:
+        """Account one env step, pop what ended and return the finished SMDP transitions.
+
+        With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
+        """
         g, cfg = self.graph, self.config
         reward = step_td["reward"]
         if bool(torch.isnan(reward).any()):
@@ -331,7 +336,11 @@ class HierarchicalExecutor:
         child_done = _shift_left(ended_own)
         terminal = (own | env_term[:, None]) & active & ~is_prim
 
-        batch = self._transitions(step_td, ctx, node, emit, child_done, terminal, env_trunc, real)
+        batch = None
+        if transitions:
+            batch = self._transitions(
+                step_td, ctx, node, emit, child_done, terminal, env_trunc, real
+            )
         if cfg.record_visited:
             self._record_visits(active & ~is_prim & ~child_popped, ctx, node)
 

@@ -258,7 +258,7 @@ class Trainer:
                 break
             ctx = self.graph.context(td, rows, executor.memory)
             self.learner.evaluate(ctx)
-            executor.observe(td, ctx)
+            executor.observe(td, ctx, transitions=False)
             action = executor.act(ctx, policy, self.step)
         n = env.envs_per_learner
         self.last_eval_steps = length.view(-1, n).mean(1)
