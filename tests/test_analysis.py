@@ -12,8 +12,9 @@ from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
 
 
 def model_of(next_state, reward):
-    return A.FiniteModel.from_tables(torch.tensor(next_state), torch.tensor(reward),
-                                     lambda s: {"observation": s})
+    return A.FiniteModel.from_tables(
+        torch.tensor(next_state), torch.tensor(reward), lambda s: {"observation": s}
+    )
 
 
 def by_state(o):
@@ -31,8 +32,9 @@ def pass_through_graph(n_states, n_actions):
     names = [f"a{k}" for k in range(n_actions)]
     root = Subtask("Root", ["Inner"], n_states, abstract=by_state)
     inner = Subtask("Inner", names, n_states, abstract=by_state)
-    return TaskGraph("Root", [root, inner, *(Primitive(n, k) for k, n in enumerate(names))],
-                     n_actions)
+    return TaskGraph(
+        "Root", [root, inner, *(Primitive(n, k) for k, n in enumerate(names))], n_actions
+    )
 
 
 # ----------------------------------------------------------------------------- Markov chains
@@ -58,13 +60,17 @@ def test_chain_gain_per_recurrent_class_and_absorption():
 # A (0) -left-> X (1), A -right-> Y' (2) -> Y (3); X and Y go back to A. Every step -1 except
 # leaving X (0) and leaving Y (+10). Subtask Go ends at X or Y: its nearest exit is X.
 A_, X, Y1, Y = range(4)
-TWO_EXITS = model_of([[X, Y1], [A_, A_], [Y, Y], [A_, A_]],
-                     [[-1, -1], [0, 0], [-1, -1], [10, 10]])
+TWO_EXITS = model_of([[X, Y1], [A_, A_], [Y, Y], [A_, A_]], [[-1, -1], [0, 0], [-1, -1], [10, 10]])
 
 
 def two_exit_graph(root_terminal=None):
-    go = Subtask("Go", ["left", "right"], 4, abstract=by_state,
-                 terminated=lambda o: (o["observation"] == X) | (o["observation"] == Y))
+    go = Subtask(
+        "Go",
+        ["left", "right"],
+        4,
+        abstract=by_state,
+        terminated=lambda o: (o["observation"] == X) | (o["observation"] == Y),
+    )
     root = Subtask("Root", ["Go", "left"], 4, abstract=by_state, terminated=root_terminal)
     return TaskGraph("Root", [root, go, Primitive("left", 0), Primitive("right", 1)], 2)
 
@@ -147,12 +153,22 @@ def test_hierarchical_at_least_recursive_at_most_flat(seed):
 
 
 def test_a_hierarchy_that_can_get_stuck_is_an_error():
-    g = TaskGraph("Root", [
-        Subtask("Root", ["T"], 4, abstract=by_state),
-        Subtask("T", ["left"], 4, abstract=by_state,
-                child_mask=lambda o: (o["observation"] != Y1)[:, None]),
-        Primitive("left", 0), Primitive("right", 1),
-    ], 2)
+    g = TaskGraph(
+        "Root",
+        [
+            Subtask("Root", ["T"], 4, abstract=by_state),
+            Subtask(
+                "T",
+                ["left"],
+                4,
+                abstract=by_state,
+                child_mask=lambda o: (o["observation"] != Y1)[:, None],
+            ),
+            Primitive("left", 0),
+            Primitive("right", 1),
+        ],
+        2,
+    )
     with pytest.raises(GraphError, match="get stuck"):
         A.hierarchically_optimal(g, TWO_EXITS)
 
