@@ -17,7 +17,7 @@ from agents.taxi import PESSIMISTIC_INIT, taxi_hierarchy
 from envs.taxi import TaxiEnv
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.trainer import Trainer, TrainConfig
+from hrl_torch.trainer import TrainConfig, Trainer
 
 
 def run(init: float, seeds: list[int], steps: int, envs: int) -> Trainer:
