@@ -6,3 +6,8 @@ Importing ``agents`` registers every domain with ``hrl_torch.registry`` (lazily)
 from hrl_torch import registry
 
 registry.register("taxi", "agents.taxi:DOMAIN")
+registry.register("small-agv", "agents.small_agv:DOMAIN")
+registry.register("agv", "agents.agv:DOMAIN")
+registry.register("agv-ct", "agents.agv:DOMAIN_CT")
+registry.register("taxi-fuel", "agents.taxi_fuel:DOMAIN")
+registry.register("ship-steering", "agents.ship:DOMAIN")

@@ -54,6 +54,7 @@ import torch
 from tensordict import TensorDict
 
 from envs.agv_small import (
+    DELIVERY_WEIGHT,
     EMPTY,
     GOALS,
     MACHINE_ROOM,
@@ -63,8 +64,21 @@ from envs.agv_small import (
     N_LOCATIONS,
     N_STATES,
     ROOM_OF,
+    SmallAGVEnv,
 )
+from hrl_torch.continuing import ThroughputEvaluator
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import (
+    HARLearner,
+    HDRLearner,
+    HHLearner,
+    MaxQLearner,
+    RARLearner,
+    RVIQLearner,
+)
+from hrl_torch.trainer import TrainConfig
 
 MOVES = ("South", "North", "East", "West")  # env actions 0-3
 
@@ -148,3 +162,107 @@ def small_agv_hierarchy() -> TaskGraph:
     prims += [Primitive("Load", 4), Primitive("Unload", 5, N_STATES, lambda o: o["observation"])]
     parts = [_get_part(1), _get_part(2), _deliver_part(1), _deliver_part(2)]
     return TaskGraph("Root", [root, *parts, *navs, *prims], n_actions=N_ACTIONS)
+
+
+def flat_graph() -> TaskGraph:
+    """One root over the six primitive actions, abstraction = the 78 states (flat learners)."""
+    names = [*MOVES, "Load", "Unload"]
+    root = Subtask("Root", names, n_states=N_STATES, abstract=lambda o: o["observation"])
+    return TaskGraph(
+        "Root", [root, *(Primitive(n, k) for k, n in enumerate(names))], n_actions=N_ACTIONS
+    )
+
+
+# ---------------------------------------------------------------------- experiments (Fig. 4.3)
+def weighted_deliveries(td: TensorDict) -> torch.Tensor:
+    """``20 * part 1 + 1 * part 2`` delivered by the step: Figure 4.3's throughput measure."""
+    return DELIVERY_WEIGHT.to(td.device)[td["delivered"]]
+
+
+def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> SmallAGVEnv:
+    """The batched small AGV for ``seeds`` (torch backend only)."""
+    if backend != "torch":
+        raise ValueError(f"unknown backend {backend!r}")
+    return SmallAGVEnv(seeds, envs_per_learner)
+
+
+def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
+    # the task is deterministic and every optimal cycle divides 240 steps (12 and 20)
+    return ThroughputEvaluator(
+        horizon=240,
+        burn_in=60,
+        metric=weighted_deliveries,
+        scale=10_000.0,
+        unit="20 x part 1 + part 2 per 10,000 steps",
+    )
+
+
+def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+    # decays early to a small floor: with average-reward learners the floor sets how far the
+    # gain (measured on the exploring behaviour) lags the greedy policy's gain
+    return EpsilonGreedy(Linear(1.0, 0.01, config.steps // 8))
+
+
+#: Figure 4.3's discount for the discounted learners (the text found 0.99 best)
+GAMMA = 0.99
+#: optimistic starts of the gains' running sums (g_0, t_0) (see ``GainEstimate``): HAR needs a
+#: short one, RAR and HH a longer one (docs/reproduction.md, Figure 4.3)
+HAR_GAIN_PRIOR = (1.0, 2_000.0)
+RAR_GAIN_PRIOR = (1.0, 20_000.0)
+HH_GAIN_PRIOR = (1.0, 20_000.0)
+_TRAIN = TrainConfig(steps=150_000, eval_every=5_000, eval_episodes=4, log_every=5_000)
+
+
+def _spec(make_graph, make_learner, description: str) -> AlgoSpec:
+    return AlgoSpec(
+        make_graph=make_graph,
+        make_learner=make_learner,
+        make_exploration=_epsilon,
+        train=_TRAIN,
+        envs_per_learner=16,
+        description=description,
+    )
+
+
+DOMAIN = DomainSpec(
+    name="small-agv",
+    description="small AGV scheduling task (Figure 4.2), continuing",
+    make_env=make_env,
+    make_evaluator=_evaluator,
+    reference={
+        "hierarchically optimal 16,667": 10_000 * 20 / 12,
+        "recursively optimal 10,500": 10_500.0,
+    },
+    algos={
+        "har": _spec(
+            small_agv_hierarchy,
+            lambda g, p: HARLearner(g, p, 0.2, gain_prior=HAR_GAIN_PRIOR),
+            "hierarchically optimal average reward RL (Algorithm 1)",
+        ),
+        "hdr": _spec(
+            small_agv_hierarchy,
+            lambda g, p: HDRLearner(g, p, 0.2, GAMMA),
+            f"hierarchically optimal discounted RL (MAXQ-Q + CE, gamma {GAMMA})",
+        ),
+        "rar": _spec(
+            small_agv_hierarchy,
+            lambda g, p: RARLearner(g, p, 0.2, gain_prior=RAR_GAIN_PRIOR),
+            "recursively optimal average reward RL (Algorithm 2)",
+        ),
+        "maxq-q": _spec(
+            small_agv_hierarchy,
+            lambda g, p: MaxQLearner(g, p, 0.2, GAMMA),
+            f"MAXQ-Q (Dietterich 2000), gamma {GAMMA}",
+        ),
+        "hh": _spec(
+            small_agv_hierarchy,
+            lambda g, p: HHLearner(g, p, gain_prior=HH_GAIN_PRIOR),
+            "HH-learning (Seri and Tadepalli 2002), model-based",
+        ),
+        "rvi-q": _spec(
+            flat_graph,
+            lambda g, p: RVIQLearner(g, p, 0.2),
+            "flat RVI Q-learning over the 78 states (not in Figure 4.3)",
+        ),
+    },
+)

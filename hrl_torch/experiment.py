@@ -228,6 +228,13 @@ def format_summary(summary: dict) -> str:
         f"({summary['env_steps_per_second']:.0f} env steps/s)"
     ]
     for r in summary["per_seed"]:
+        if "final_eval_throughput" in r:  # continuing tasks (hrl_torch.continuing)
+            rows.append(
+                f"  seed {r['seed']}: greedy throughput {r['final_eval_throughput']:.2f}, "
+                f"training throughput {r.get('final_train_throughput', float('nan')):.2f} "
+                f"({r['throughput_unit']})"
+            )
+            continue
         rows.append(
             f"  seed {r['seed']}: final eval return {r['final_eval_return']:.2f}, "
             f"success {r['final_eval_success']:.2f}, steps to threshold {r['steps_to_threshold']}"

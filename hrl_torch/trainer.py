@@ -38,7 +38,8 @@ class TrainConfig:
         checkpoint_every: env steps per learner between checkpoints (0: only at the end).
         progress: show a progress bar.
         success_key: observation field that marks a successful episode end (``terminated``
-            by default; e.g. ``success`` where some terminations are failures).
+            by default; e.g. ``success`` where some terminations are failures; ``"!name"``:
+            the termination is a success where the field ``name`` is False).
     """
 
     steps: int = 50_000
@@ -252,7 +253,7 @@ class Trainer:
             ret += td["reward"].cpu() * ~finished
             length += (~finished).float()
             ended = (td["terminated"] | td["truncated"]).cpu()
-            success |= (td[cfg.success_key] & td["terminated"]).cpu() & ~finished
+            success |= _succeeded(td, cfg.success_key).cpu() & ~finished
             finished |= ended
             if bool(finished.all()):
                 break
@@ -372,6 +373,12 @@ class Trainer:
         self.load_state_dict(load_checkpoint(path)["trainer"])
 
 
+def _succeeded(td, key: str) -> torch.Tensor:
+    """``[B]``: the episode terminated successfully (``key``: see ``TrainConfig.success_key``)."""
+    flag = ~td[key[1:]] if key.startswith("!") else td[key]
+    return flag & td["terminated"]
+
+
 def _ratio(num: torch.Tensor, den: torch.Tensor) -> list[float]:
     return torch.where(den > 0, num / den.clamp_min(1), torch.nan).tolist()
 
@@ -399,7 +406,7 @@ class _EpisodeTracker:
                 ended,
                 self.ret * ended,
                 self.length * ended,
-                (td[self.success_key] & td["terminated"]).cpu().float() * ended,
+                _succeeded(td, self.success_key).cpu().float() * ended,
             ]
         )
         self.sums.index_add_(1, self.rows, values)

@@ -5,11 +5,16 @@ On a flat graph (a root over the primitive actions, abstraction = the full state
     Q(s, a) <- (1-alpha) Q(s, a) + alpha [r - f(Q) t + max_a' Q(s', a')]
 
 with ``t = 1`` in discrete time and the duration ``tau`` in continuous time (the SMDP version,
-``continuous=True``). The reference function is the mean of the whole table,
-``f(Q) = sum_{s,a} Q(s, a) / (|S| |A|)`` (one of Abounadi et al.'s choices: ``f(e) = 1``,
-``f(Q + c e) = f(Q) + c``); it is the learner's gain estimate. We keep the table's sum exactly
-(per learner, float64) from the change of every updated entry, so ``f`` costs nothing per step
-even on the 1,347,192-state AGV table.
+``continuous=True``). The reference function ``f`` (Abounadi et al.: ``f(e) = 1``,
+``f(Q + c e) = f(Q) + c``) is the learner's gain estimate; two of their choices:
+
+- ``f(Q) = max_a Q(s_ref, a)`` for a reference state ``s_ref`` (``reference_state``): it moves
+  as fast as that state is visited, so pick a state the process visits often;
+- ``f(Q) = sum_{s,a} Q(s, a) / (|S| |A|)``, the mean of the whole table (default). We keep the
+  table's sum exactly (per learner, float64) from the change of every updated entry, so it
+  costs nothing per step; but every update moves the mean by only ``alpha delta / (|S| |A|)``,
+  so on a large table (the AGV's 6.7 million entries) ``f`` lags the gain for millions of
+  steps and the visited values drift.
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ class RVIQLearner(TabularLearner):
         alpha: step size (number or schedule).
         continuous: SMDP (continuous-time) version: the reference is charged per unit of time.
         init: initial action values.
+        reference_state: abstract state ``s_ref`` of ``f(Q) = max_a Q(s_ref, a)`` (``None``:
+            the mean of the table).
     """
 
     def __init__(
@@ -39,12 +46,14 @@ class RVIQLearner(TabularLearner):
         alpha: float | Schedule = 0.1,
         continuous: bool = False,
         init: float = 0.0,
+        reference_state: int | None = None,
     ) -> None:
         super().__init__(graph, n_learners, alpha, 1.0, per_instance=False)
         kids = graph.node_children[graph.root, : int(graph.node_n_children[graph.root])]
         if not bool(graph.node_is_primitive[kids].all()):
             raise GraphError("RVI Q-learning needs a flat graph: every child of the root primitive")
         self.continuous = continuous
+        self.reference_state = reference_state
         self.Q = self.completion_bank(init)
         self.n_entries = self.Q.total
         self.register_buffer(
@@ -53,8 +62,14 @@ class RVIQLearner(TabularLearner):
 
     @property
     def gain(self) -> torch.Tensor:
-        """``f(Q)``, the mean action value, per learner ``[P]``."""
-        return (self.q_sum / self.n_entries).float()
+        """``f(Q)`` per learner ``[P]``."""
+        if self.reference_state is None:
+            return (self.q_sum / self.n_entries).float()
+        root = self.layout.inst_table[0]
+        width = int(self.graph.node_n_children[self.graph.root])
+        learners = torch.arange(self.n_learners, device=self.q_sum.device)
+        idx = self.Q.row_index(learners, root, torch.tensor(self.reference_state), width)
+        return self.Q.read(idx).amax(-1)
 
     def evaluate(self, ctx: StepContext) -> None:
         """``max_a Q(s, a)`` at the root."""

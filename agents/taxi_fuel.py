@@ -1,0 +1,163 @@
+"""Taxi with fuel (Dietterich 1998; Section 5.2.1): the MAXQ hierarchy with a Refuel subtask.
+
+Task graph (Dietterich's taxi graph, ``agents.taxi``, plus Refuel)::
+
+    Root ─┬─ Get ────┬─ Navigate(t) ── North, South, East, West     t bound to the passenger
+          │          └─ Pickup
+          ├─ Put ────┬─ Navigate(t)                                 t bound to the destination
+          │          └─ Putdown
+          └─ Refuel ─┬─ Navigate(F)
+                     └─ Fillup
+
+State abstractions (ours where the text is silent; fuel matters only where refuelling is
+decided):
+
+=============  ============================================  ======
+node           relevant variables                            states
+=============  ============================================  ======
+Root           passenger location, destination, fuel          260
+Get            taxi location, passenger location              125
+Put            taxi location, destination                     100
+Refuel         taxi location                                  25
+Navigate(t)    taxi location (t in R, G, Y, B, F)             25
+N/S/E/W        none                                           1
+Pickup         taxi location, passenger location              125
+Putdown        taxi location, destination                     100
+Fillup         taxi location                                  25
+=============  ============================================  ======
+
+Refuel ends with a full tank (so it is unavailable when the tank is full). Navigate ignores the
+fuel: a move that runs the tank dry ends the episode inside whatever subtask is running, and only
+the root (which sees the fuel) can avoid it. The Root does not see the taxi's location, so its
+refuelling rule is a function of passenger, destination and fuel: a recursively optimal policy
+under these abstractions, which is what all hierarchical learners here can reach.
+
+Algorithms (Figure 5.3): ``hpgrl`` (Algorithm 3, one softmax parameter per (state, child) at
+every subtask), ``maxq-q`` and flat ``q`` over the 6,500 states.
+"""
+
+from __future__ import annotations
+
+from agents.taxi import IN_TAXI, PESSIMISTIC_INIT, Navigate, _bind, flat_graph
+from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import MaxQLearner, SMDPQLearner
+from hrl_torch.learners.pg import HPGRLLearner, PGConfig
+from hrl_torch.trainer import TrainConfig
+
+FUEL_LOC = FUEL_STATION[0] * 5 + FUEL_STATION[1]
+
+
+class NavigateToFuel(Navigate):
+    """Navigate(F): drive to the fuel station; abstraction: taxi location."""
+
+    def __init__(self) -> None:
+        super().__init__(0)
+        self.name = "Navigate_F"
+        self.target_loc.fill_(FUEL_LOC)
+
+
+def taxi_fuel_hierarchy() -> TaskGraph:
+    """Dietterich's taxi graph with Refuel (see the module docstring)."""
+    navs = [Navigate(t) for t in range(4)]
+    nav_names = [n.name for n in navs]
+    root = Subtask(
+        "Root",
+        ["Get", "Put", "Refuel"],
+        n_states=5 * 4 * N_FUEL,
+        abstract=lambda o: (o["passenger"] * 4 + o["destination"]) * N_FUEL + o["fuel"],
+    )
+    get = Subtask(
+        "Get",
+        [*nav_names, "Pickup"],
+        n_states=125,
+        abstract=lambda o: o["taxi_loc"] * 5 + o["passenger"],
+        terminated=lambda o: o["passenger"] == IN_TAXI,
+        child_mask=_bind("passenger"),
+    )
+    put = Subtask(
+        "Put",
+        [*nav_names, "Putdown"],
+        n_states=100,
+        abstract=lambda o: o["taxi_loc"] * 4 + o["destination"],
+        terminated=lambda o: o["passenger"] != IN_TAXI,
+        child_mask=_bind("destination"),
+    )
+    refuel = Subtask(
+        "Refuel",
+        ["Navigate_F", "Fillup"],
+        n_states=25,
+        abstract=lambda o: o["taxi_loc"],
+        terminated=lambda o: o["fuel"] == CAPACITY,
+    )
+    prims = [
+        Primitive("South", 0),
+        Primitive("North", 1),
+        Primitive("East", 2),
+        Primitive("West", 3),
+        Primitive("Pickup", 4, 125, lambda o: o["taxi_loc"] * 5 + o["passenger"]),
+        Primitive("Putdown", 5, 100, lambda o: o["taxi_loc"] * 4 + o["destination"]),
+        Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"]),
+    ]
+    nodes = [root, get, put, refuel, *navs, NavigateToFuel(), *prims]
+    return TaskGraph("Root", nodes, n_actions=N_ACTIONS)
+
+
+def flat_fuel_graph() -> TaskGraph:
+    """Flat Q-learning over the 6,500 states and 7 actions."""
+    return flat_graph(N_STATES, N_ACTIONS)
+
+
+def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> TaxiFuelEnv:
+    """Taxi-fuel for ``seeds`` (200-step limit)."""
+    if backend != "torch":
+        raise ValueError(f"unknown backend {backend!r}")
+    return TaxiFuelEnv(seeds, envs_per_learner)
+
+
+def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
+
+
+#: HPGRL's step size (ours; the text gives none)
+HPGRL_ALPHA = 0.05
+
+
+def make_hpgrl(graph: TaskGraph, n_learners: int) -> HPGRLLearner:
+    """Algorithm 3 at every subtask: one softmax parameter per (abstract state, child)."""
+    return HPGRLLearner(graph, n_learners, PGConfig(alpha=HPGRL_ALPHA, trace_len=200))
+
+
+DOMAIN = DomainSpec(
+    name="taxi-fuel",
+    description="taxi with fuel (Dietterich 1998; Section 5.2.1)",
+    make_env=make_env,
+    algos={
+        "hpgrl": AlgoSpec(
+            make_graph=taxi_fuel_hierarchy,
+            make_learner=make_hpgrl,
+            make_exploration=lambda config: EpsilonGreedy(0.0),
+            train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
+            envs_per_learner=256,
+            description="HPGRL (Algorithm 3) with tabular softmax policies at every subtask",
+        ),
+        "maxq-q": AlgoSpec(
+            make_graph=taxi_fuel_hierarchy,
+            make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            make_exploration=_epsilon,
+            train=TrainConfig(steps=1_000_000, eval_every=10_000, success_key="!out_of_fuel"),
+            envs_per_learner=256,
+            description="MAXQ-Q (Dietterich 2000) on the taxi-fuel graph",
+        ),
+        "q": AlgoSpec(
+            make_graph=flat_fuel_graph,
+            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            make_exploration=_epsilon,
+            train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
+            envs_per_learner=256,
+            description="flat Q-learning over the 6,500 states",
+        ),
+    },
+)

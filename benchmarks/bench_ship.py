@@ -1,0 +1,91 @@
+"""Ship steering hybrid: env steps/s on the TorchRL collector path and on the Trainer path.
+
+    .venv/bin/python benchmarks/bench_ship.py [--seconds 30] [--envs 1024] [--online]
+
+Both paths train the same population (5 seeds, the ``hybrid`` AlgoSpec of ``agents.ship``)
+from a fresh learner; each is warmed up for 100 batched steps, then timed for ``--seconds``.
+Env steps count every row of every batched step (auto-reset steps included), as the trainer
+does. Prints a markdown table; the load average is printed so a busy machine is visible.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import replace
+
+import torch
+
+from agents.ship import DOMAIN, PARAMS, make_hybrid, ship_hierarchy
+from envs.ship import ShipSteeringEnv
+from hrl_torch.collector import HierarchicalPolicy, collect
+from hrl_torch.trainer import TrainConfig, Trainer
+
+
+def _learner(seeds, online=False):
+    graph = ship_hierarchy(PARAMS.out_of_bounds_reward)
+    return graph, make_hybrid(graph, len(seeds), replace(PARAMS, online=online))
+
+
+def bench_collector(seeds, envs, seconds, online=False, steps_per_batch=32):
+    spec = DOMAIN.algos["hybrid"]
+    graph, learner = _learner(seeds, online)
+    env = ShipSteeringEnv(seeds, envs)
+    policy = HierarchicalPolicy(
+        graph, learner, spec.make_exploration(spec.train), env, spec.executor
+    )
+    collect(env, policy, until=lambda: policy.step >= 100 * envs, steps_per_batch=steps_per_batch)
+    start = policy.step
+    stats = collect(
+        env, policy, until=lambda: False, steps_per_batch=steps_per_batch, max_seconds=seconds
+    )
+    return (policy.step - start) * len(seeds) / stats["seconds"]
+
+
+def bench_trainer(seeds, envs, seconds, online=False):
+    spec = DOMAIN.algos["hybrid"]
+    graph, learner = _learner(seeds, online)
+    env = ShipSteeringEnv(seeds, envs)
+    config = TrainConfig(steps=10**12, eval_every=0, progress=False, success_key="success")
+    trainer = Trainer(
+        env, graph, learner, spec.make_exploration(config), config, None, spec.executor
+    )
+    for _ in range(100):
+        trainer.train_step()
+    start, t0 = trainer.step, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        trainer.train_step()
+    return (trainer.step - start) * len(seeds) / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--envs", type=int, nargs="+", default=[1024])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument(
+        "--online", action="store_true", help="also time HPGRL's per-step updates (line 16)"
+    )
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    seeds = list(range(args.seeds))
+    print(f"load average at start: {os.getloadavg()}")
+    print("| path | HPGRL updates | learners x envs | env steps/s | ms per batched step |")
+    print("|---|---|---:|---:|---:|")
+    modes = [False, True] if args.online else [False]
+    for envs in args.envs:
+        for online in modes:
+            for name, fn in (("collector", bench_collector), ("trainer", bench_trainer)):
+                rate = fn(seeds, envs, args.seconds, online)
+                ms = 1000 * len(seeds) * envs / rate
+                mode = "every step" if online else "at the renewal"
+                print(
+                    f"| {name} | {mode} | {len(seeds)} x {envs} | {rate:,.0f} | {ms:.1f} |",
+                    flush=True,
+                )
+    print(f"load average at end: {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,181 @@
+"""Continuing tasks: throughput (amount per unit of time) instead of episode returns.
+
+A continuing task never ends an episode, so the ``Trainer``'s episodic evaluation (mean return
+of greedy episodes) does not apply. ``ThroughputEvaluator`` gives the trainer two measures:
+
+- **greedy throughput** (``evaluate``): every learner's current policy, chosen greedily with
+  frozen tables, runs ``burn_in + horizon`` steps on the eval env from its reset state; the
+  throughput is the metric summed over the last ``horizon`` steps of all the learner's eval
+  rows divided by their total time. The eval env restarts its random stream each time (with
+  one eval seed for all learners, as ``run_experiment`` sets up, every learner and every
+  evaluation meets the same arrivals), so a curve measures changes of the policy.
+- **training throughput** (``observe`` / ``flush``): the metric over the time the learner's
+  training rows spent since the last log, exploration included: what an online system
+  delivers while it learns (the dissertation's curves).
+
+The metric is the reward by default; a domain may count something else (e.g. the small AGV's
+weighted deliveries, ``20 * part1 + part2``). ``scale`` converts "per unit of time" into the
+reported unit (e.g. per 10,000 steps). The greedy evaluation also reports the reward rate, the
+gain of the greedy policy.
+
+Wire it with ``Trainer(..., evaluator=ThroughputEvaluator(...))`` or a domain's
+``DomainSpec.make_evaluator``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from tensordict import TensorDict
+
+from hrl_torch.executor import HierarchicalExecutor
+from hrl_torch.exploration import Greedy
+from hrl_torch.learners.base import ValuePolicy
+from hrl_torch.rng import BatchRNG
+
+Metric = Callable[[TensorDict], torch.Tensor]
+
+
+def reward_metric(td: TensorDict) -> torch.Tensor:
+    """The step's reward ``[B]``."""
+    return td["reward"]
+
+
+@dataclass
+class ThroughputEvaluator:
+    """Greedy and training throughput of every learner (see the module docstring).
+
+    Attributes:
+        horizon: steps of each greedy evaluation that count.
+        burn_in: steps run first and not counted (from the reset state to steady behaviour).
+        metric: amount of one step ``td -> [B]`` (default: the reward).
+        scale: factor applied to amount per unit of time.
+        unit: what the scaled throughput counts (for plot labels and the summary).
+        tags: logged names of the greedy throughput and the greedy reward rate.
+        train_tags: logged names of the training throughput and the training reward rate.
+    """
+
+    horizon: int = 1_000
+    burn_in: int = 100
+    metric: Metric = reward_metric
+    scale: float = 1.0
+    unit: str = "reward per unit of time"
+    tags: tuple[str, str] = ("charts/eval_throughput", "charts/eval_reward_rate")
+    train_tags: tuple[str, str] = ("charts/throughput", "charts/reward_rate")
+    last_eval: dict[str, list[float]] = field(default_factory=dict, repr=False)
+    last_train: dict[str, list[float]] = field(default_factory=dict, repr=False)
+    _sums: torch.Tensor | None = field(default=None, repr=False)
+
+    # ------------------------------------------------------------------ greedy
+    @torch.no_grad()
+    def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
+        """Greedy throughput and reward rate per learner ``([P], [P])`` on ``trainer.eval_env``."""
+        env, graph, learner = trainer.eval_env, trainer.graph, trainer.learner
+        if env is None:
+            raise ValueError("a throughput evaluation needs an eval env (eval_episodes > 0)")
+        if hasattr(env, "rng"):
+            env.rng.load_state_dict({"counter": 0})
+        executor = HierarchicalExecutor(
+            graph, env.batch_size, env.envs_per_learner, learner.gamma, trainer.executor_config
+        )
+        policy = ValuePolicy(
+            learner, Greedy(), BatchRNG(env.seeds, env.envs_per_learner, "eval-explore")
+        )
+        rows = env.learner_of_row()
+        ctx = graph.context(env.reset(), rows, executor.memory)
+        learner.evaluate(ctx)
+        action = executor.act(ctx, policy, trainer.step)
+        sums = torch.zeros(3, env.batch_size)  # amount, reward, time
+        for k in range(self.burn_in + self.horizon):
+            td = env.step(action)
+            if k >= self.burn_in:
+                sums += torch.stack([self.metric(td), td["reward"], td["duration"]]).cpu()
+            ctx = graph.context(td, rows, executor.memory)
+            learner.evaluate(ctx)
+            executor.observe(td, ctx)
+            action = executor.act(ctx, policy, trainer.step)
+        per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1)
+        throughput, rate = _rates(per_learner, self.scale)
+        self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
+        return throughput, rate
+
+    # ------------------------------------------------------------------ training
+    def observe(self, td: TensorDict, rows: torch.Tensor, n_learners: int) -> None:
+        """Add one training step of every row (``rows [B]``: learner of each row)."""
+        real = (~td["is_init"]).float()
+        values = torch.stack([self.metric(td) * real, td["reward"] * real, td["duration"] * real])
+        if self._sums is None or self._sums.shape[1] != n_learners:
+            self._sums = torch.zeros(3, n_learners, dtype=torch.float64)
+        self._sums.index_add_(1, rows.cpu(), values.cpu().double())
+
+    def flush(self) -> dict[str, list[float]]:
+        """Training throughput and reward rate since the last flush, per learner."""
+        if self._sums is None:
+            return {}
+        throughput, rate = _rates(self._sums, self.scale)
+        self._sums.zero_()
+        names = self.train_tags
+        self.last_train = {names[0]: throughput.tolist(), names[1]: rate.tolist()}
+        return dict(self.last_train)
+
+    def summary(self, learner: int) -> dict[str, float]:
+        """Latest greedy and training throughput of one learner, for ``summary.json``."""
+        out: dict = {"throughput_unit": self.unit}
+        names = {
+            self.tags[0]: "final_eval_throughput",
+            self.tags[1]: "final_eval_reward_rate",
+            self.train_tags[0]: "final_train_throughput",
+            self.train_tags[1]: "final_train_reward_rate",
+        }
+        for values in (self.last_eval, self.last_train):
+            for tag, per_learner in values.items():
+                out[names[tag]] = per_learner[learner]
+        return out
+
+    @property
+    def metrics(self) -> list[str]:
+        """Every tag this evaluator logs (for plots)."""
+        return [*self.tags, *self.train_tags]
+
+
+def _rates(sums: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(scale * amount / time, reward / time)`` from ``sums [3, P]`` (NaN without time)."""
+    time = sums[2]
+    safe = time.clamp_min(1e-12)
+    throughput = torch.where(time > 0, scale * sums[0] / safe, torch.nan)
+    rate = torch.where(time > 0, sums[1] / safe, torch.nan)
+    return throughput.float(), rate.float()
+
+
+# ---------------------------------------------------------------------- learned policies
+@torch.no_grad()
+def greedy_table(learner, observations: TensorDict, learner_index: int = 0) -> torch.Tensor:
+    """The greedy policy of one learner as an instance table ``[n_instances, max_states]``.
+
+    ``observations`` holds every full state (e.g. a ``FiniteModel``'s); per instance and
+    abstract state the child with the largest action value (the first full state of that
+    abstract state decides; entries never met stay 0). The table runs in
+    ``hrl_torch.analysis`` (``policy_gain``, ``TablePolicy``) for the exact gain of what was
+    learned.
+    """
+    g = learner.graph
+    n = observations.batch_size[0]
+    rows = torch.full((n,), learner_index, dtype=torch.long)
+    ctx = g.context(observations, rows)
+    learner.evaluate(ctx)
+    table = torch.zeros(g.n_instances, int(g.node_n_states.max()), dtype=torch.long)
+    for inst in range(g.n_instances):
+        node = int(g.inst_node[inst])
+        if bool(g.node_is_primitive[node]):
+            continue
+        q = learner.action_values(torch.full((n,), inst, dtype=torch.long), ctx)
+        available = ctx.available[:, node]
+        choice = torch.where(available, q, -torch.inf).argmax(-1)
+        state = ctx.abstract[:, node]
+        first = torch.full((int(g.node_n_states[node]),), n, dtype=torch.long)
+        first = first.scatter_reduce(0, state, torch.arange(n), "amin")
+        seen = first < n
+        table[inst, : len(first)][seen] = choice[first[seen]]
+    return table

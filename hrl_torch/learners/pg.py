@@ -1,0 +1,536 @@
+"""Policy-gradient learners (Chapter 5): HPGRL (Algorithm 3), flat PGRL and actor-critic.
+
+Every policy-gradient (PG) node ``i`` has a parameterised policy ``mu_i(a|s; theta_i)``: a softmax
+with one parameter per (abstract state, child) when its children are discrete, or a Gaussian
+over CMAC tiles of its continuous features when its only child is a continuous primitive
+(``hrl_torch.policies``). Nodes may share parameters by naming the same *group* (the ship's four
+diagonal directions share one low-level policy). Updates (Algorithm 3, lines 11-16, with
+Equation 5.3), after child ``a`` of ``i`` ran from ``s`` to ``s'`` with external reward ``R``
+(summed over the child) and internal reward ``r~_i`` of ``i``::
+
+    z_{k+1} = z_k + grad mu_i(a|s) / mu_i(a|s)          z = 0 at the renewal state s_i^*
+    theta_{k+1} = theta_k + alpha_k (R + r~_i) z_{k+1}
+
+so each invocation of ``i`` is one renewal cycle: ``z`` restarts at 0 when ``i`` is invoked, and
+``r~_i`` (pseudo rewards, shaping, or a reward computed from the node's own features at ``s'``)
+is used by ``i`` only: its parent sees ``R`` alone (the executor never adds internal rewards to
+the external accumulators). Over one cycle the updates sum to ``alpha F_m`` of Equation 5.2,
+``F_m = sum_n R_n grad mu / mu`` with ``R_n`` the reward-to-go, an unbiased estimate of the
+gradient of the weighted reward-to-go ``chi_i`` (Proposition 5.1).
+
+Eligibilities are sparse: per env row and stack depth holding a PG node, the likelihood-ratio
+terms of the current invocation as ``(flat parameter index, value)`` pairs in a ring of
+``trace_len`` entries, with the cycle's reward so far when each was added. ``online=True``
+applies line 16 at every step (cost: the invocation's length per row and step);
+``online=False`` applies the same sum once at the renewal, ``sum_n g_n (C_end - C_{n-1})``
+(Equation 5.2; cost per row and step independent of the cycle's length). ``beta < 1``
+discounts the eligibility, ``z_{k+1} = beta z_k + grad mu / mu`` (Baxter & Bartlett 2001; a
+biased, lower-variance member of the family Section 5.2 allows for lines 11-16); ``beta = 1`` is
+Equation 5.3. With ``E`` envs per learner the rows' updates are summed into the learner's shared
+parameters.
+
+``ActorCriticLearner`` is the flat actor-critic baseline of Section 5.3 (Konda 2002): the actor
+is a tile-coded Gaussian as in flat PGRL, the critic a tile-coded ``Q(s, a)`` learned by
+SARSA(0); the actor steps ``beta (Q(s, a) - Q(s, a_mean)) grad log mu(a|s)`` every step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import torch
+
+from hrl_torch.exploration import Greedy, Schedule, as_schedule, masked_argmax
+from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.learners.base import Learner
+from hrl_torch.ops import lookup
+from hrl_torch.policies import sample_categorical, squash
+from hrl_torch.tiles import TileCoder
+
+FeatureReward = Callable[[torch.Tensor], torch.Tensor]
+
+
+def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
+    """``[B, S]``: the invocation at each stack depth in ``depths [S]`` ended in this batch.
+
+    A level ``d >= 1`` is popped exactly when its parent (level ``d - 1``) emits a transition;
+    the root ends with the episode (or by its own termination).
+    """
+    root_end = batch["terminal"][:, 0] | batch["truncated"][:, 0]
+    parent = (depths - 1).clamp_min(0)
+    return torch.where(depths[None, :] == 0, root_end[:, None], batch["valid"][:, parent])
+
+
+def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
+    """Standard normals from two uniforms in ``[0, 1)`` (same shapes)."""
+    return torch.sqrt(-2.0 * torch.log(u1.clamp_min(1e-7))) * torch.cos(2.0 * math.pi * u2)
+
+
+@dataclass
+class PGConfig:
+    """Options of the policy-gradient learners.
+
+    Attributes:
+        alpha: step size ``alpha_k`` (number or schedule over env steps per learner).
+        sigma: standard deviation of the Gaussian heads (in the pre-squash space).
+        action_low: lower end of a continuous action (after the sigmoid squash).
+        action_high: upper end.
+        online: Algorithm 3 line 16 every step (True) or the same sum once per renewal cycle.
+        beta: eligibility discount, ``z_{k+1} = beta z_k + grad mu / mu``; 1 is Equation 5.3,
+            ``beta < 1`` is Baxter & Bartlett's biased, lower-variance estimate (which lines
+            11-16 of Algorithm 3 may be replaced with, Section 5.2).
+        trace_len: likelihood-ratio terms kept per invocation; an invocation that selects more
+            children than this raises (bound invocations with the executor's guard).
+        init: initial value of every policy parameter.
+        frozen: accumulate ``sum (R + r~) z`` into ``grad_sum`` instead of changing ``theta``
+            (gradient estimates for tests and diagnostics).
+    """
+
+    alpha: float | Schedule = 0.01
+    sigma: float = 1.0
+    action_low: float = -15.0
+    action_high: float = 15.0
+    online: bool = True
+    beta: float = 1.0
+    trace_len: int = 256
+    init: float = 0.0
+    frozen: bool = False
+
+
+class HPGRLLearner(Learner):
+    """HPGRL (Algorithm 3) over the PG nodes of a graph; flat PGRL on a one-level graph.
+
+    Args:
+        graph: the task graph.
+        n_learners: population size ``P``.
+        config: step size, Gaussian width, update mode, trace length.
+        nodes: the PG nodes: names (each its own parameter group) or ``{name: group}``
+            (nodes of one group share parameters). Default: every subtask.
+        coder: tile coder of the Gaussian nodes' features (required when there are any).
+        feature_reward: ``{node name: fn}``, an internal reward ``fn(next_features [R, F]) ->
+            [R]`` of the node computed from its own features at ``s'`` (for nodes whose
+            internal reward depends on invocation memory, e.g. a local frame).
+    """
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        config: PGConfig | None = None,
+        nodes: Sequence[str] | Mapping[str, str] | None = None,
+        coder: TileCoder | None = None,
+        feature_reward: Mapping[str, FeatureReward] | None = None,
+    ) -> None:
+        super().__init__(graph, n_learners)
+        self.config = cfg = config or PGConfig()
+        self.alpha = as_schedule(cfg.alpha)
+        if nodes is None:
+            nodes = [graph.names[k] for k in graph.subtasks()]
+        groups = dict(nodes) if isinstance(nodes, Mapping) else {n: n for n in nodes}
+        self.coder = coder
+        self._build_layout(groups)
+        by_fn: dict[int, tuple[FeatureReward, list[int]]] = {}
+        for name, fn in (feature_reward or {}).items():
+            by_fn.setdefault(id(fn), (fn, []))[1].append(graph.index[name])
+        # one call per distinct function: [(fn, node indices using it)]
+        self.feature_reward = [(fn, torch.tensor(ks)) for fn, ks in by_fn.values()]
+        self.register_buffer("theta", torch.full((n_learners * self.total + 1,), float(cfg.init)))
+        self.theta[-1] = 0.0
+        self.register_buffer("grad_sum", torch.zeros_like(self.theta), persistent=False)
+        self.register_buffer(
+            "cycles", torch.zeros(n_learners, len(self.group_names)), persistent=False
+        )
+        self._rows: dict[str, torch.Tensor] = {}
+
+    # ------------------------------------------------------------------ layout
+    def _build_layout(self, groups: dict[str, str]) -> None:
+        g = self.graph
+        names, kinds, sizes, widths, n_states, spec = [], [], [], [], [], {}
+        node_group = torch.full((g.n_nodes,), -1, dtype=torch.long)
+        for name, group in groups.items():
+            node = g.node(name)
+            if node.is_primitive:
+                raise GraphError(f"PG node {name!r} is a primitive")
+            children = [g.node(c) for c in node.children_names]
+            gauss = len(children) == 1 and children[0].is_primitive and children[0].action_dim > 0
+            if gauss:
+                if self.coder is None:
+                    raise GraphError(f"PG node {name!r} has a continuous child but no coder")
+                if node.n_features < self.coder.resolution.numel():
+                    raise GraphError(
+                        f"PG node {name!r} needs >= {self.coder.resolution.numel()} "
+                        f"features for the tile coder, has {node.n_features}"
+                    )
+                this = ("gaussian", 1, self.coder.n_tilings, self.coder.n_features)
+            else:
+                n = len(children)
+                this = ("softmax", node.n_states, n, node.n_states * n)
+            if group not in spec:
+                spec[group] = this
+                names.append(group)
+                kinds.append(this[0])
+                n_states.append(this[1])
+                widths.append(this[2])
+                sizes.append(this[3])
+            elif spec[group] != this:
+                raise GraphError(f"nodes of PG group {group!r} differ in shape: {name!r}")
+            node_group[g.index[name]] = names.index(group)
+        sizes_t = torch.tensor(sizes, dtype=torch.long)
+        self.group_names = names
+        self._group_states = n_states
+        self.total = max(int(sizes_t.sum()), 1)
+        self.sentinel = self.n_learners * self.total
+        self.register_buffer("node_group", node_group, persistent=False)
+        self.register_buffer("group_offset", torch.cumsum(sizes_t, 0) - sizes_t, persistent=False)
+        self.register_buffer("group_width", torch.tensor(widths), persistent=False)
+        self.register_buffer(
+            "group_gauss", torch.tensor([k == "gaussian" for k in kinds]), persistent=False
+        )
+        self.has_softmax = "softmax" in kinds
+        self.has_gauss = "gaussian" in kinds
+        self.width = max([g.max_children if self.has_softmax else 0] + widths)
+        pg_inst = node_group[g.inst_node] >= 0
+        depths = sorted({int(d) for d in g.inst_depth[pg_inst]})
+        depth_slot = torch.full((g.max_levels,), len(depths), dtype=torch.long)
+        depth_slot[depths] = torch.arange(len(depths))
+        self.register_buffer("depths", torch.tensor(depths, dtype=torch.long), persistent=False)
+        self.register_buffer("depth_slot", depth_slot, persistent=False)
+
+    def group_view(self, group: str, learner: int = 0, buffer: str = "theta") -> torch.Tensor:
+        """One group's block of ``theta`` (or ``grad_sum``) for one learner, as a view.
+
+        Softmax groups are ``[n_states, n_children]``, Gaussian groups ``[n_tiles]``.
+        """
+        k = self.group_names.index(group)
+        start = learner * self.total + int(self.group_offset[k])
+        flat = getattr(self, buffer)
+        if bool(self.group_gauss[k]):
+            return flat[start : start + self.coder.n_features]
+        width, n = int(self.group_width[k]), self._group_states[k]
+        return flat[start : start + n * width].view(n, width)
+
+    # ------------------------------------------------------------------ per-row state
+    def _row_state(self, b: int, device: torch.device) -> dict[str, torch.Tensor]:
+        rows = self._rows
+        if not rows or rows["count"].shape[0] != b:
+            s, k, w = len(self.depths), self.config.trace_len, self.width
+            long = dict(dtype=torch.long, device=device)
+            rows.clear()
+            rows.update(
+                pending_index=torch.full((b, s + 1, w), self.sentinel, **long),
+                pending_value=torch.zeros(b, s + 1, w, device=device),
+                index=torch.full((b, s, k + 1, w), self.sentinel, **long),
+                value=torch.zeros(b, s, k + 1, w, device=device),
+                reward=torch.zeros(b, s, k + 1, device=device),
+                count=torch.zeros(b, s, **long),
+            )
+        return rows
+
+    def get_extra_state(self) -> dict:
+        """Eligibility traces and pending choices of the training rows (checkpoints)."""
+        return {k: v.clone() for k, v in self._rows.items()}
+
+    def set_extra_state(self, state: dict) -> None:
+        """Restore ``get_extra_state``."""
+        self._rows = {k: v.clone() for k, v in state.items()}
+
+    # ------------------------------------------------------------------ acting
+    def select(
+        self,
+        inst: torch.Tensor,
+        ctx: StepContext,
+        available: torch.Tensor,
+        u: torch.Tensor,
+        greedy: bool = False,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Choose children of PG instances ``inst [B]`` (other rows: ignored values).
+
+        ``u [B, 3]`` uniforms (a softmax sample, two for a normal). With ``greedy`` the mode is
+        taken (most probable child, the Gaussian's mean) and nothing is recorded; otherwise the
+        likelihood-ratio term of each choice is kept until the child ends (``update``). Only
+        the rows on PG nodes are computed.
+
+        Returns ``(child slot [B], greedy flag [B], action [B, 1] or None)``.
+        """
+        g, b, dev = self.graph, inst.shape[0], inst.device
+        choice = torch.zeros(b, dtype=torch.long, device=dev)
+        flag = torch.full((b,), greedy, dtype=torch.bool, device=dev)
+        action = torch.zeros(b, 1, device=dev) if self.has_gauss else None
+        node = lookup(g.inst_node, inst)
+        rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)
+        if rows.numel() == 0:
+            return choice, flag, action
+        inst, node, u = inst[rows], node[rows], u[rows]
+        gid = lookup(self.node_group, node)
+        base = ctx.learner[rows] * self.total + lookup(self.group_offset, gid)
+        n = rows.shape[0]
+        index = torch.full((n, self.width), self.sentinel, dtype=torch.long, device=dev)
+        value = torch.zeros(n, self.width, device=dev)
+        sub_choice = torch.zeros(n, dtype=torch.long, device=dev)
+        sub_flag = torch.full((n,), greedy, dtype=torch.bool, device=dev)
+        if self.has_softmax:
+            soft = ~lookup(self.group_gauss, gid)
+            a = available.shape[1]
+            state = ctx.abstract[rows].gather(1, node[:, None]).squeeze(1)
+            ok = available[rows] & soft[:, None]
+            idx = base[:, None] + state[:, None] * lookup(self.group_width, gid)[:, None]
+            idx = torch.where(ok, idx + torch.arange(a, device=dev), self.sentinel)
+            logits = lookup(self.theta, idx).masked_fill(~ok, -math.inf)
+            logits = torch.where(ok.any(-1, keepdim=True), logits, 0.0)
+            probs = torch.softmax(logits, -1)
+            best = masked_argmax(logits, ok)
+            pick = best if greedy else sample_categorical(probs, u[:, 0])
+            score = torch.nn.functional.one_hot(pick, a).to(probs.dtype) - probs
+            sub_choice = torch.where(soft, pick, sub_choice)
+            sub_flag = torch.where(soft, pick == best, sub_flag)
+            index[:, :a] = torch.where(soft[:, None], idx, index[:, :a])
+            value[:, :a] = torch.where(soft[:, None] & ok, score, value[:, :a])
+        if self.has_gauss:
+            cfg, coder = self.config, self.coder
+            gauss = lookup(self.group_gauss, gid)
+            dims = coder.resolution.numel()
+            feats = ctx.features[rows].gather(
+                1, node.view(-1, 1, 1).expand(-1, 1, ctx.features.shape[2])
+            )[:, 0, :dims]
+            tiles = torch.where(gauss[:, None], coder(feats) + base[:, None], self.sentinel)
+            mean = lookup(self.theta, tiles).mean(-1)
+            pre = mean if greedy else mean + cfg.sigma * box_muller(u[:, 1], u[:, 2])
+            per_tile = (pre - mean) / (cfg.sigma**2 * coder.n_tilings)
+            t = coder.n_tilings
+            index[:, :t] = torch.where(gauss[:, None], tiles, index[:, :t])
+            value[:, :t] = torch.where(gauss[:, None], per_tile[:, None], value[:, :t])
+            sub_choice = torch.where(gauss, 0, sub_choice)
+            sub_action = squash(pre, cfg.action_low, cfg.action_high)
+            action[rows, 0] = torch.where(gauss, sub_action, 0.0)
+        choice[rows] = sub_choice
+        flag[rows] = sub_flag
+        if not greedy:
+            state = self._row_state(b, dev)
+            slot = lookup(self.depth_slot, lookup(g.inst_depth, inst))
+            state["pending_index"][rows, slot] = index
+            state["pending_value"][rows, slot] = value
+        return choice, flag, action
+
+    def make_policy(self, exploration, rng) -> PGPolicy:
+        """The policy of a graph whose nodes are all PG (``Greedy`` exploration: evaluation)."""
+        if bool((self.node_group[self.graph.subtasks()] < 0).any()):
+            raise GraphError("not every subtask is a PG node: use hrl_torch.hybrid.HybridLearner")
+        return PGPolicy(self, rng, greedy=isinstance(exploration, Greedy))
+
+    # ------------------------------------------------------------------ learning
+    def rewards(self, batch, node: torch.Tensor, depths: torch.Tensor) -> torch.Tensor:
+        """``R + r~_i`` ``[B, S]`` of the transitions at ``depths``.
+
+        External reward of the child plus the node's shaping, pseudo and feature-based
+        internal rewards.
+        """
+        r = (batch["reward"] + batch["internal_reward"] + batch["pseudo_reward"])[:, depths]
+        if self.feature_reward:
+            feats = batch["next_features"][:, depths]
+            for fn, fn_nodes in self.feature_reward:
+                uses = (node[..., None] == fn_nodes.to(node.device)).any(-1)
+                r = r + torch.where(uses, fn(feats.reshape(-1, feats.shape[-1])).view_as(r), 0.0)
+        return r
+
+    def update(self, batch, ctx: StepContext, step: int) -> None:
+        """Lines 11-16 of Algorithm 3 for every PG transition in ``batch``."""
+        cfg, depths = self.config, self.depths
+        b = batch.batch_size[0]
+        rows = self._row_state(b, self.theta.device)
+        node = batch["node"][:, depths]
+        valid = batch["valid"][:, depths] & (self.node_group[node] >= 0)
+        r = self.rewards(batch, node, depths)
+        count, k = rows["count"], cfg.trace_len
+        if bool((valid & (count >= k)).any()):
+            name = self.graph.names[int(node[valid & (count >= k)][0])]
+            raise RuntimeError(
+                f"PG node {name!r} selected more than trace_len={k} children in one invocation; "
+                "raise PGConfig.trace_len or bound the subtask with the executor's guard"
+            )
+        # line 14: z_{k+1} = z_k + grad mu / mu (the pending choice joins the invocation's ring)
+        pos = torch.where(valid, count, k)
+        s = len(depths)
+        for key, src in (("index", "pending_index"), ("value", "pending_value")):
+            ring = rows[key]
+            at = pos.view(b, s, 1, 1).expand(-1, -1, 1, ring.shape[-1])
+            ring.scatter_(2, at, rows[src][:, :s, None, :])
+        rows["reward"].scatter_(2, pos[..., None], r[..., None])
+        count += valid
+        ended = invocation_ended(batch, depths) & (count > 0)
+        # line 16: every entry of z weighted by this step's R + r~ now (online), or by its
+        # reward-to-go once the cycle ends (Equation 5.2)
+        self._apply(rows, valid if cfg.online else ended, self.alpha(step))
+        if cfg.frozen and bool(ended.any()):
+            gid = self.node_group[node]
+            self.cycles.view(-1).index_add_(
+                0,
+                (batch["learner"][:, None] * len(self.group_names) + gid.clamp_min(0))[ended],
+                torch.ones(int(ended.sum()), device=self.cycles.device),
+            )
+        rows["count"] = torch.where(ended, 0, count)
+
+    def _apply(self, rows, pairs: torch.Tensor, alpha: float) -> None:
+        """``theta += alpha * sum_n w_n g_n`` over the ring entries of the selected (row, depth).
+
+        Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).
+        At the renewal: ``w_n = sum_{k >= n} beta^(k - n) r_k``, the (discounted) reward-to-go
+        of Equation 5.2. Only the filled entries of the selected pairs are read.
+        """
+        pair = pairs.view(-1).nonzero().squeeze(1)  # flat (row, depth) ids
+        if pair.numel() == 0:
+            return
+        k1, beta = self.config.trace_len + 1, self.config.beta
+        count = lookup(rows["count"].view(-1), pair)
+        slot = torch.arange(k1, device=pair.device)
+        filled = slot < count[:, None]
+        reward = lookup(rows["reward"].view(-1, k1), pair).double() * filled
+        if self.config.online:
+            last = reward.gather(1, (count - 1)[:, None])
+            weight = last * beta ** (count[:, None] - 1 - slot).clamp_min(0).double()
+        elif beta == 1.0:
+            weight = reward.flip(1).cumsum(1).flip(1)
+        else:
+            scale = beta ** slot.double()
+            weight = (reward * scale).flip(1).cumsum(1).flip(1) / scale
+        sel = filled.nonzero()
+        entry = pair[sel[:, 0]] * k1 + sel[:, 1]  # flat ring-entry ids
+        index = lookup(rows["index"].view(-1, self.width), entry)
+        value = lookup(rows["value"].view(-1, self.width), entry)
+        w = weight[sel[:, 0], sel[:, 1]].float()
+        if self.config.frozen:
+            self.grad_sum.index_add_(0, index.reshape(-1), (w[:, None] * value).reshape(-1))
+            self.grad_sum[-1] = 0.0
+            return
+        self.theta.index_add_(0, index.reshape(-1), (alpha * w[:, None] * value).reshape(-1))
+        self.theta[-1] = 0.0
+
+
+class PGPolicy:
+    """Executor policy of a pure-PG graph: each push samples from the node's policy.
+
+    Args:
+        learner: the HPGRL learner (its ``select`` records the likelihood-ratio terms).
+        rng: random numbers for the rows.
+        greedy: act on the policies' modes and record nothing (evaluation).
+    """
+
+    def __init__(self, learner: HPGRLLearner, rng, greedy: bool = False) -> None:
+        self.learner = learner
+        self.rng = rng
+        self.greedy = greedy
+        self._first = 0
+
+    def new_step(self) -> None:
+        """Reserve this step's draws, one per push level."""
+        self._first = self.rng.reserve(self.learner.graph.max_levels)
+
+    def select(self, inst, ctx, available, step, push):
+        """``(child slot, greedy flag, action)`` for the ``push``-th push of the step."""
+        u = self.rng.uniform(3, counter=self._first + push)
+        return self.learner.select(inst, ctx, available, u, self.greedy)
+
+
+class ActorCriticLearner(HPGRLLearner):
+    """Flat actor-critic (Section 5.3, after Konda 2002) on a one-level continuous-action graph.
+
+    The actor is the root's tile-coded Gaussian (as flat PGRL); the critic is a tile-coded
+    ``Q(s, a)`` over the root's features and the action, learned by SARSA(0)::
+
+        Q(s, a) <- Q(s, a) + alpha_c [r + Q(s', a') - Q(s, a)]      (r at a terminal s')
+        theta  <- theta + beta [Q(s, a) - Q(s, a_mean(s))] grad log mu(a|s)
+
+    ``Q(s, a_mean)`` (the critic at the actor's mean action) is a state-dependent baseline: the
+    text's critic is not Konda's compatible one, whose values have zero mean over actions.
+
+    Args:
+        graph: a graph whose root has a single continuous primitive child and features.
+        n_learners: population size ``P``.
+        coder: actor tile coder (root features).
+        critic_coder: tile coder over ``[features, action]``.
+        config: the actor's options (``alpha`` is ``beta``).
+        critic_alpha: the critic's step size.
+        feature_reward: as for ``HPGRLLearner``.
+    """
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        coder: TileCoder,
+        critic_coder: TileCoder,
+        config: PGConfig | None = None,
+        critic_alpha: float | Schedule = 0.1,
+        feature_reward: Mapping[str, FeatureReward] | None = None,
+    ) -> None:
+        config = config or PGConfig()
+        config = PGConfig(**{**config.__dict__, "trace_len": 1, "online": True})
+        super().__init__(graph, n_learners, config, [graph.root_name], coder, feature_reward)
+        if not bool(self.group_gauss[0]):
+            raise GraphError("ActorCriticLearner needs a root with one continuous child")
+        self.critic_coder = critic_coder
+        self.critic_alpha = as_schedule(critic_alpha)
+        self.critic_total = critic_coder.n_features
+        self.register_buffer("w", torch.zeros(n_learners * self.critic_total + 1))
+
+    def _q_tiles(self, learner, features, action) -> torch.Tensor:
+        dims = self.critic_coder.resolution.numel() - 1
+        x = torch.cat([features[:, :dims], action.reshape(-1, 1)], dim=1)
+        return self.critic_coder(x) + (learner * self.critic_total)[:, None]
+
+    def update(self, batch, ctx: StepContext, step: int) -> None:
+        """Critic SARSA(0) on the previous step, actor step on this one."""
+        b = batch.batch_size[0]
+        rows = self._row_state(b, self.theta.device)
+        if "prev_tiles" not in rows:
+            t, dev = self.critic_coder.n_tilings, self.w.device
+            rows["prev_tiles"] = torch.full(
+                (b, t), self.w.numel() - 1, dtype=torch.long, device=dev
+            )
+            rows["prev_r"] = torch.zeros(b, device=dev)
+            rows["has_prev"] = torch.zeros(b, dtype=torch.bool, device=dev)
+        depths = self.depths[:1]
+        valid = batch["valid"][:, 0]
+        r = self.rewards(batch, batch["node"][:, depths], depths)[:, 0]
+        learner, feats = batch["learner"], batch["features"][:, 0]
+        tiles = torch.where(
+            valid[:, None], self._q_tiles(learner, feats, batch["prim_action"]), self.w.numel() - 1
+        )
+        q = self.w[tiles].mean(-1)
+        # actor: baseline = the critic at the actor's mean action
+        actor_tiles = self.coder(feats[:, : self.coder.resolution.numel()])
+        mean = self.theta[actor_tiles + (learner * self.total)[:, None]].mean(-1)
+        cfg = self.config
+        q_mean = self.w[
+            self._q_tiles(learner, feats, squash(mean, cfg.action_low, cfg.action_high))
+        ].mean(-1)
+        advantage = torch.where(valid, q - q_mean, 0.0)
+        slot0 = rows["pending_index"][:, 0], rows["pending_value"][:, 0]
+        alpha = self.alpha(step)
+        self.theta.index_add_(
+            0, slot0[0].reshape(-1), (alpha * advantage[:, None] * slot0[1]).reshape(-1)
+        )
+        self.theta[-1] = 0.0
+        # critic: the previous step bootstraps from Q(s, a) of this one; a terminal step at once
+        c_alpha = self.critic_alpha(step)
+        prev = rows["has_prev"] & valid
+        delta_prev = torch.where(
+            prev, rows["prev_r"] + q - self.w[rows["prev_tiles"]].mean(-1), 0.0
+        )
+        terminal = batch["terminal"][:, 0] & valid
+        delta_now = torch.where(terminal, r - q, 0.0)
+        self.w.index_add_(
+            0,
+            rows["prev_tiles"].reshape(-1),
+            (c_alpha * delta_prev[:, None]).expand_as(tiles).reshape(-1),
+        )
+        self.w.index_add_(
+            0, tiles.reshape(-1), (c_alpha * delta_now[:, None]).expand_as(tiles).reshape(-1)
+        )
+        self.w[-1] = 0.0
+        self.record_td(learner, batch["node"][:, 0], delta_prev, prev)
+        keep = valid & ~terminal & ~batch["truncated"][:, 0]
+        rows["prev_tiles"] = torch.where(keep[:, None], tiles, self.w.numel() - 1)
+        rows["prev_r"] = r
+        rows["has_prev"] = keep

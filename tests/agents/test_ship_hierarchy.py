@@ -1,0 +1,200 @@
+"""The ship hierarchy of Figure 5.6 and its hybrid learner."""
+
+import json
+
+import pytest
+import torch
+
+from agents.ship import (
+    DIRECTION_NODES,
+    DOMAIN,
+    LOW_LEVEL_GUARD,
+    SUBTASK_OF_DIRECTION,
+    DirectionSubtask,
+    flat_graph,
+    local_failure,
+    local_success,
+    make_hybrid,
+    ship_hierarchy,
+    to_local,
+)
+from envs.ship import ShipSteeringEnv
+from hrl_torch.cli import main as cli_main
+from hrl_torch.collector import HierarchicalPolicy, collect
+from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.trainer import TrainConfig, Trainer
+
+
+def _states(n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, 4, generator=g)
+    return u * torch.tensor([1000.0, 1000.0, 360.0, 30.0]) - torch.tensor([0, 0, 180.0, 15.0])
+
+
+@pytest.mark.parametrize("k", range(8))
+def test_direction_features_and_termination_equal_the_frame_functions(k):
+    node = DirectionSubtask(k)
+    state = _states(200, k)
+    origin = state[:, :2] + torch.randn(200, 2) * 60
+    obs = {"x": state[:, 0], "y": state[:, 1], "theta": state[:, 2], "theta_dot": state[:, 3]}
+    obs["observation"] = state
+    local = to_local(state, origin, torch.full((200,), k))
+    assert torch.allclose(node.features(obs, origin), local, atol=1e-3)
+    kind = SUBTASK_OF_DIRECTION[k].expand(200)
+    expected = local_success(local, kind) | local_failure(local)
+    assert torch.equal(node.terminated(obs, origin), expected)
+    assert expected.any() and not expected.all()
+
+
+def test_graph_of_figure_5_6():
+    g = ship_hierarchy()
+    assert g.node("Root").n_states == 400
+    assert list(g.node("Root").children_names) == list(DIRECTION_NODES)
+    learner = make_hybrid(g, 1)
+    groups = {
+        n: learner.pg.group_names[int(learner.pg.node_group[g.index[n]])] for n in DIRECTION_NODES
+    }
+    assert groups == {
+        "GoN": "HorizontalVertical",
+        "GoNE": "Diagonal",
+        "GoE": "HorizontalVertical",
+        "GoSE": "Diagonal",
+        "GoS": "HorizontalVertical",
+        "GoSW": "Diagonal",
+        "GoW": "HorizontalVertical",
+        "GoNW": "Diagonal",
+    }
+    assert learner.pg.group_view("Diagonal").numel() == 40_500
+    assert learner.value.Q.data.shape[1] >= 400 * 8
+
+
+def _trainer(seeds, envs=4):
+    graph = ship_hierarchy()
+    learner = make_hybrid(graph, len(seeds))
+    env = ShipSteeringEnv(seeds, envs)
+    config = TrainConfig(steps=10**9, eval_every=0, progress=False, success_key="success")
+    spec = DOMAIN.algos["hybrid"]
+    return Trainer(env, graph, learner, EpsilonGreedy(0.1), config, None, spec.executor)
+
+
+def _tables(learner, p):
+    return learner.pg.theta[
+        p * learner.pg.total : (p + 1) * learner.pg.total
+    ], learner.value.Q.data[p]
+
+
+def test_population_equals_separate_runs_and_internal_rewards_stay_below():
+    seeds = [4, 9]
+    together = _trainer(seeds)
+    root_rewards = []
+    update = together.learner.update
+
+    def spy(batch, ctx, step):
+        valid = batch["valid"][:, 0]
+        root_rewards.append((batch["reward"][:, 0][valid], batch["steps"][:, 0][valid]))
+        update(batch, ctx, step)
+
+    together.learner.update = spy
+    together.train(steps=300 * 4)
+    # the root's reward is the sum of -1 per step: the low level's +-100 and G stay inside it
+    rewards = torch.cat([r for r, _ in root_rewards])
+    steps = torch.cat([s for _, s in root_rewards])
+    assert rewards.numel() > 5 and torch.equal(rewards, -steps.float())
+    for p, seed in enumerate(seeds):
+        alone = _trainer([seed])
+        alone.train(steps=300 * 4)
+        for mine, theirs in zip(
+            _tables(alone.learner, 0), _tables(together.learner, p), strict=True
+        ):
+            assert torch.equal(mine, theirs)
+    assert together.learner.pg.theta.abs().sum() > 0
+
+
+def test_collector_path_learns_exactly_what_the_trainer_learns():
+    seeds = [1, 2]
+    trainer = _trainer(seeds)
+    graph = ship_hierarchy()
+    learner = make_hybrid(graph, len(seeds))
+    env = ShipSteeringEnv(seeds, 4)
+    policy = HierarchicalPolicy(
+        graph, learner, EpsilonGreedy(0.1), env, DOMAIN.algos["hybrid"].executor
+    )
+    stats = collect(env, policy, until=lambda: policy.step >= 400, steps_per_batch=25)
+    assert stats["env_steps"] >= 400 * 2
+    while trainer.step < policy.step:
+        trainer.train_step()
+    assert torch.equal(trainer.learner.pg.theta, learner.pg.theta)
+    assert torch.equal(trainer.learner.value.Q.data, learner.value.Q.data)
+    assert learner.monitor.episodes.events.sum() == trainer.learner.monitor.episodes.events.sum()
+
+
+def test_save_and_resume_is_exact(tmp_path):
+    straight = _trainer([5, 6])
+    straight.train(steps=200 * 4)
+    first = _trainer([5, 6])
+    first.train(steps=100 * 4)
+    first.save(tmp_path / "ckpt.pt")
+    resumed = _trainer([5, 6])
+    resumed.load(tmp_path / "ckpt.pt")
+    resumed.train(steps=200 * 4)
+    assert torch.equal(straight.learner.pg.theta, resumed.learner.pg.theta)
+    assert torch.equal(straight.learner.value.Q.data, resumed.learner.value.Q.data)
+
+
+def test_low_level_guard_bounds_invocations():
+    assert DOMAIN.algos["hybrid"].executor.max_subtask_steps == LOW_LEVEL_GUARD
+    assert DOMAIN.algos["hybrid"].executor.on_timeout == "abort"
+
+
+def test_flat_graph_has_the_global_state_as_features():
+    g = flat_graph()
+    assert g.node("Root").n_features == 4 and g.max_levels == 2
+
+
+def test_cli_writes_per_seed_success_and_steps(tmp_path):
+    code = cli_main(
+        [
+            "train",
+            "ship-steering",
+            "--algo",
+            "hybrid",
+            "--seeds",
+            "2",
+            "--envs-per-seed",
+            "8",
+            "--steps",
+            "400",
+            "--eval-episodes",
+            "4",
+            "--eval-every",
+            "0",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--no-tensorboard",
+        ]
+    )
+    assert code == 0
+    (run,) = tmp_path.iterdir()
+    summary = json.loads((run / "summary.json").read_text())
+    for row in summary["per_seed"]:
+        assert 0.0 <= row["final_eval_success"] <= 1.0
+        assert 0 < row["final_eval_steps"] <= 1000
+
+
+@pytest.mark.slow
+def test_hybrid_learns_to_pass_the_gate():
+    # 2 seeds x 1024 envs, 8,000 episodes per seed (about a minute); the full protocol (5 seeds,
+    # 50,000 episodes) reaches 94% (docs/reproduction.md)
+    seeds = [0, 1]
+    graph = DOMAIN.algos["hybrid"].make_graph()
+    learner = make_hybrid(graph, len(seeds))
+    env = ShipSteeringEnv(seeds, 1024)
+    spec = DOMAIN.algos["hybrid"]
+    policy = HierarchicalPolicy(graph, learner, EpsilonGreedy(0.1), env, spec.executor)
+    episodes = learner.monitor.episodes
+    collect(env, policy, until=lambda: bool((episodes.events >= 8000).all()), steps_per_batch=32)
+    gate = episodes.block_means()["success"][:, 7]  # episodes 7,001-8,000
+    assert (gate > 0.5).all(), gate
+    first = episodes.block_means()["success"][:, 0]
+    assert (gate > first + 0.3).all()

@@ -1,0 +1,65 @@
+"""The taxi-fuel hierarchy (Dietterich 1998 with Refuel) and its learners."""
+
+import pytest
+import torch
+
+from agents.taxi_fuel import DOMAIN, FUEL_LOC, taxi_fuel_hierarchy
+from envs.taxi_fuel import CAPACITY, TaxiFuelEnv
+from hrl_torch.experiment import RunOptions, build_trainer
+
+
+def test_refuel_is_available_below_a_full_tank_and_ends_with_fillup():
+    g = taxi_fuel_hierarchy()
+    env = TaxiFuelEnv(list(range(4)), 64)
+    obs = env.reset()
+    ctx = g.context(obs)
+    root, refuel = g.index["Root"], g.index["Refuel"]
+    full = obs["fuel"] == CAPACITY
+    assert torch.equal(ctx.available[:, root, 2], ~full)
+    assert torch.equal(ctx.terminated[:, refuel], full)
+    nav_f = g.node("Navigate_F")
+    assert int(nav_f.target_loc) == FUEL_LOC == 17
+    assert g.node("Root").n_states == 260
+
+
+def _train(algo, steps, seeds=3, eval_every=None):
+    opts = RunOptions(
+        seeds=list(range(seeds)),
+        steps=steps,
+        eval_every=eval_every or steps // 4,
+        progress=False,
+        tensorboard=False,
+    )
+    return build_trainer(DOMAIN, algo, opts).train()
+
+
+def test_hpgrl_improves_the_greedy_return():
+    result = _train("hpgrl", 60_000)
+    first, last = result.curve[0][1], result.curve[-1][1]
+    assert sum(last) / 3 > sum(first) / 3 + 40, result.curve
+
+
+def test_running_dry_is_not_a_success():
+    from hrl_torch.trainer import _succeeded
+
+    td = {
+        "terminated": torch.tensor([True, True, False]),
+        "out_of_fuel": torch.tensor([False, True, False]),
+    }
+    assert _succeeded(td, "!out_of_fuel").tolist() == [True, False, False]
+    assert DOMAIN.algos["hpgrl"].train.success_key == "!out_of_fuel"
+
+
+@pytest.mark.slow
+def test_maxq_q_reaches_minus_10_before_flat_q():
+    # Figure 5.3's ordering on our runs (10 seeds): MAXQ-Q median 358k env steps, flat Q 758k
+    def first_hit(result, threshold=-10.0):
+        hits = []
+        for p in range(len(result.final_eval)):
+            hit = [s for s, values in result.curve if values[p] >= threshold]
+            hits.append(hit[0] if hit else float("inf"))
+        return sorted(hits)[len(hits) // 2]
+
+    maxq = _train("maxq-q", 700_000, seeds=5, eval_every=50_000)
+    flat = _train("q", 1_200_000, seeds=5, eval_every=50_000)
+    assert first_hit(maxq) < first_hit(flat) < float("inf")
