@@ -18,7 +18,7 @@ child ended):
   ``node``), ``pseudo_reward`` (``node``'s pseudo reward if ``s'`` is terminal for it);
 - ``terminal`` (``s'`` is terminal for ``node``), ``child_done`` (the child ended by its own
   termination, not by an abort), ``truncated`` (time limit), ``greedy`` (the child and all its
-  ancestors were chosen greedily);
+  ancestors were chosen greedily), ``own_greedy`` (the child was chosen greedily);
 - with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
   ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
   where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
@@ -130,6 +130,7 @@ class HierarchicalExecutor:
         "disc_reward",
         "internal",
         "greedy",
+        "own_greedy",
         "inv_steps",
         "done",
         "vis_state",
@@ -173,7 +174,8 @@ class HierarchicalExecutor:
         self.reward = torch.zeros(b, w, **flt)
         self.disc_reward = torch.zeros(b, w, **flt)
         self.internal = torch.zeros(b, w, **flt)
-        self.greedy = torch.ones(b, w, dtype=torch.bool, device=device)
+        self.greedy = torch.ones(b, w, dtype=torch.bool, device=device)  # with all ancestors
+        self.own_greedy = torch.ones(b, w, dtype=torch.bool, device=device)  # this level only
         self.inv_steps = torch.zeros(b, w, **long)
         self.done = torch.zeros(b, dtype=torch.bool, device=device)
         self.vis_state = torch.zeros(b, w, n_vis, **long)
@@ -238,6 +240,7 @@ class HierarchicalExecutor:
             _scatter_at(self.child, slot, choice)
             _scatter_at(self.start_state, slot, ctx.abstract.gather(1, node[:, None]))
             _scatter_at(self.greedy, slot, greedy & parent_greedy)
+            _scatter_at(self.own_greedy, slot, greedy)
             for acc in (self.steps, self.time, self.reward, self.disc_reward, self.internal):
                 _scatter_at(acc, slot, 0)
             if ctx.features is not None:
@@ -309,7 +312,8 @@ class HierarchicalExecutor:
             disc = self.gamma**self.time
             self.disc_reward += active * disc * reward[:, None]
         if g.shaping_nodes and self._obs is not None:
-            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs).gather(1, node)
+            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, self.memory)
+            shaping = shaping.gather(1, node)
             self.internal += active * (self.gamma**self.time) * shaping
         self.steps += active
         self.time += active * tau[:, None]
@@ -380,7 +384,8 @@ class HierarchicalExecutor:
         child_inst = _shift_left(self.stack, fill=-1)[:, :d]
         parent_inst = _shift_right(self.stack, fill=-1)[:, :d]
         if g.internal_nodes:
-            pseudo = g.internal_rewards_at_termination(ctx.obs).gather(1, node) * terminal
+            pseudo = g.internal_rewards_at_termination(ctx.obs, self.memory).gather(1, node)
+            pseudo = pseudo * terminal
         else:
             pseudo = torch.zeros(node.shape, device=self.device)
         top = self.top
@@ -405,6 +410,7 @@ class HierarchicalExecutor:
             "child_done": child_done[:, :d] & emit,
             "truncated": env_trunc[:, None] & emit & ~terminal,
             "greedy": self.greedy[:, :d].clone(),
+            "own_greedy": self.own_greedy[:, :d].clone(),
             "prim_valid": real & (top >= 0),
             "prim_inst": prim_inst,
             "prim_node": lookup(g.inst_node, prim_inst.clamp_min(0)),

@@ -56,7 +56,8 @@ class Subtask(nn.Module):
         n_features: width of ``features``.
         remember: ``obs -> [B, memory_size]``, what an invocation records when it starts (e.g.
             the position it started from, to steer in a local frame). With
-            ``memory_size > 0``, ``terminated`` and ``features`` receive ``(obs, memory)``.
+            ``memory_size > 0``, ``terminated``, ``features`` and ``pseudo_reward`` receive
+            ``(obs, memory)`` and ``shaping_reward`` ``(obs, action, next_obs, memory)``.
             Such a subtask's termination depends on where it started, so it never blocks a
             start (as with ``event_termination``).
         memory_size: width of ``remember``.
@@ -156,17 +157,25 @@ class Subtask(nn.Module):
         fn = self._fns["child_mask"]
         return None if fn is None else fn(obs)
 
-    def pseudo_reward(self, obs: TensorDict) -> torch.Tensor | None:
+    def pseudo_reward(
+        self, obs: TensorDict, memory: torch.Tensor | None = None
+    ) -> torch.Tensor | None:
         """Internal reward for terminating in ``obs`` (``None`` means zero)."""
         fn = self._fns["pseudo_reward"]
-        return None if fn is None else fn(obs)
+        return None if fn is None else self._with_memory(fn, obs, memory)
 
     def shaping_reward(
-        self, obs: TensorDict, action: torch.Tensor, next_obs: TensorDict
+        self,
+        obs: TensorDict,
+        action: torch.Tensor,
+        next_obs: TensorDict,
+        memory: torch.Tensor | None = None,
     ) -> torch.Tensor | None:
         """Internal reward for one primitive step inside this subtask (``None`` means zero)."""
         fn = self._fns["shaping_reward"]
-        return None if fn is None else fn(obs, action, next_obs)
+        if fn is None:
+            return None
+        return fn(obs, action, next_obs, memory) if self.memory_size else fn(obs, action, next_obs)
 
     def has_internal_rewards(self) -> bool:
         """Whether this subtask defines pseudo or shaping rewards (so internal != external)."""
@@ -573,26 +582,44 @@ class TaskGraph(nn.Module):
             out[:, k, : self.nodes[k].memory_size] = self.nodes[k].remember(obs)
         return out
 
-    def internal_rewards_at_termination(self, obs: TensorDict) -> torch.Tensor:
-        """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``."""
+    def internal_rewards_at_termination(
+        self, obs: TensorDict, memory: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Pseudo rewards of every node for terminating in ``obs``: ``[B, n_nodes]``.
+
+        Memory nodes receive their invocation's ``memory`` (``[B, n_nodes, M]``) too.
+        """
         b, device = _batch(obs)
         out = torch.zeros(b, self.n_nodes, device=device)
         for k in self.internal_nodes:
-            value = self.nodes[k].pseudo_reward(obs)
+            value = self._call(self.nodes[k].pseudo_reward, obs, memory, k)
             if value is not None:
                 out[:, k] = value
         return out
 
     def shaping_rewards(
-        self, obs: TensorDict, action: torch.Tensor, next_obs: TensorDict
+        self,
+        obs: TensorDict,
+        action: torch.Tensor,
+        next_obs: TensorDict,
+        memory: torch.Tensor | None = None,
     ) -> torch.Tensor | None:
-        """Per-step internal rewards ``[B, n_nodes]`` (``None`` when no node defines them)."""
+        """Per-step internal rewards ``[B, n_nodes]`` (``None`` when no node defines them).
+
+        Memory nodes receive their invocation's ``memory`` (``[B, n_nodes, M]``) too.
+        """
         if not self.shaping_nodes:
             return None
         b, device = _batch(obs)
         out = torch.zeros(b, self.n_nodes, device=device)
         for k in self.shaping_nodes:
-            value = self.nodes[k].shaping_reward(obs, action, next_obs)
+            node = self.nodes[k]
+            size = node.memory_size
+            value = (
+                node.shaping_reward(obs, action, next_obs, memory[:, k, :size])
+                if size
+                else node.shaping_reward(obs, action, next_obs)
+            )
             if value is not None:
                 out[:, k] = value
         return out

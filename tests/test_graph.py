@@ -111,3 +111,29 @@ def test_event_termination_ends_a_run_but_does_not_block_a_start():
     assert ctx.terminated[:, 1:3].tolist() == [[True, True], [False, False]]
     assert ctx.blocked[:, 1:3].tolist() == [[True, False], [False, False]]
     assert ctx.available[:, 0, :2].tolist() == [[False, True], [True, True]]
+
+
+def test_memory_nodes_see_where_their_invocation_started():
+    # a subtask that ends two cells right of where it started, rewarded by distance travelled
+    def remember(o):
+        return o["x"][:, None].float()
+
+    def done(o, memory):
+        return o["x"] >= memory[:, 0] + 2
+
+    def pseudo(o, memory):
+        return o["x"].float() - memory[:, 0]
+
+    hop = Subtask(
+        "Hop", ["go"], terminated=done, remember=remember, memory_size=1, pseudo_reward=pseudo
+    )
+    g = TaskGraph("Root", [Subtask("Root", ["Hop"]), hop, Primitive("go", 0)], n_actions=1)
+    o = obs(2, x=[5, 9])
+    memory = torch.zeros(2, g.n_nodes, g.max_memory)
+    memory[:, g.index["Hop"], 0] = torch.tensor([3.0, 9.0])
+    ctx = g.context(o, memory=memory)
+    hop_k = g.index["Hop"]
+    assert ctx.terminated[:, hop_k].tolist() == [True, False]
+    assert not ctx.blocked[:, hop_k].any()  # a memory node never blocks a start
+    pr = g.internal_rewards_at_termination(o, memory)
+    assert pr[:, hop_k].tolist() == [2.0, 0.0]
