@@ -291,6 +291,7 @@ def _algos(continuous: bool) -> dict[str, AlgoSpec]:
     ct = continuous
     prior = GAIN_PRIOR_CT if ct else GAIN_PRIOR
     gamma = HDR_GAMMA ** (1 / CONTINUOUS.action_mean) if ct else HDR_GAMMA
+    unit = f"{CONTINUOUS.action_mean:g} s" if ct else "step"
     steps = 1_000_000
     train = TrainConfig(steps=steps, eval_every=steps // 10, eval_episodes=4, log_every=steps // 50)
     flat = 8 * steps  # the flat learner gets more experience
@@ -318,12 +319,17 @@ def _algos(continuous: bool) -> dict[str, AlgoSpec]:
             make_exploration=_epsilon,
             train=train,
             envs_per_learner=64,
-            description=f"hierarchically optimal discounted RL (gamma {HDR_GAMMA} per step)",
+            description=f"hierarchically optimal discounted RL (gamma {HDR_GAMMA} per {unit})",
         ),
         "rvi-q": AlgoSpec(
             make_graph=flat_graph,
             make_learner=lambda g, p: RVIQLearner(
-                g, p, 0.3, continuous=ct, reference_state=RVI_REFERENCE_STATE
+                g,
+                p,
+                0.3,
+                continuous=ct,
+                reference_state=RVI_REFERENCE_STATE,
+                time_unit=CONTINUOUS.action_mean if ct else 1.0,
             ),
             make_exploration=_epsilon,
             train=flat_train,

@@ -114,9 +114,7 @@ def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
             f"{domain.name!r} has no algorithm {algo!r}; choose from {sorted(domain.algos)}"
         )
     if backend not in domain.backends:
-        raise KeyError(
-            f"{domain.name!r} has no backend {backend!r}; choose from {domain.backends}"
-        )
+        raise KeyError(f"{domain.name!r} has no backend {backend!r}; choose from {domain.backends}")
     return domain.algos[algo]
 
 

@@ -106,13 +106,17 @@ def agv_figure(domain: str, name: str, title: str, doc: str) -> None:
     parser.add_argument("--flat-steps", type=int, default=None, help="RVI-Q: steps per seed")
     parser.add_argument("--out", default="runs")
     parser.add_argument("--algos", nargs="+", default=["har", "hdr", "rar", "rvi-q"])
+    parser.add_argument(
+        "--reuse", nargs="*", default=[], help="finished run folders to use instead of rerunning"
+    )
     args = parser.parse_args()
     root = Path(args.out)
     labels = {"har": "HAR", "hdr": "HDR", "rar": "RAR", "rvi-q": "RVI-Q (flat)"}
+    reused = {summary_of(Path(r))["algo"]: Path(r) for r in args.reuse}
     runs = {}
     for algo in args.algos:
         steps = args.flat_steps if algo == "rvi-q" else args.steps
-        runs[labels[algo]] = run_cli(domain, algo, args.seeds, root, steps)
+        runs[labels[algo]] = reused.get(algo) or run_cli(domain, algo, args.seeds, root, steps)
     out = root / name
     plots(runs, out, title, {})
     best_flat = None

@@ -15,6 +15,11 @@ with ``t = 1`` in discrete time and the duration ``tau`` in continuous time (the
   costs nothing per step; but every update moves the mean by only ``alpha delta / (|S| |A|)``,
   so on a large table (the AGV's 6.7 million entries) ``f`` lags the gain for millions of
   steps and the visited values drift.
+
+In continuous time the reference entry's own update multiplies it by ``1 - alpha (1 + t)``:
+with ``t`` in seconds and actions of about 10 s the iteration diverges for any ``alpha`` above
+about 0.18. ``time_unit`` sets the unit time is measured in (durations are divided by it, e.g.
+the mean action duration), which keeps ``t`` near 1; ``gain`` is reported per original unit.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ class RVIQLearner(TabularLearner):
         init: initial action values.
         reference_state: abstract state ``s_ref`` of ``f(Q) = max_a Q(s_ref, a)`` (``None``:
             the mean of the table).
+        time_unit: durations are measured in this unit (continuous time).
     """
 
     def __init__(
@@ -47,6 +53,7 @@ class RVIQLearner(TabularLearner):
         continuous: bool = False,
         init: float = 0.0,
         reference_state: int | None = None,
+        time_unit: float = 1.0,
     ) -> None:
         super().__init__(graph, n_learners, alpha, 1.0, per_instance=False)
         kids = graph.node_children[graph.root, : int(graph.node_n_children[graph.root])]
@@ -54,6 +61,7 @@ class RVIQLearner(TabularLearner):
             raise GraphError("RVI Q-learning needs a flat graph: every child of the root primitive")
         self.continuous = continuous
         self.reference_state = reference_state
+        self.time_unit = float(time_unit)
         self.Q = self.completion_bank(init)
         self.n_entries = self.Q.total
         self.register_buffer(
@@ -62,7 +70,11 @@ class RVIQLearner(TabularLearner):
 
     @property
     def gain(self) -> torch.Tensor:
-        """``f(Q)`` per learner ``[P]``."""
+        """The gain estimate per learner ``[P]``, per original unit of time."""
+        return self.reference() / self.time_unit
+
+    def reference(self) -> torch.Tensor:
+        """``f(Q)`` per learner ``[P]`` (gain per ``time_unit``)."""
         if self.reference_state is None:
             return (self.q_sum / self.n_entries).float()
         root = self.layout.inst_table[0]
@@ -96,10 +108,13 @@ class RVIQLearner(TabularLearner):
         valid = batch["valid"][:, 0] & (batch["child_done"][:, 0] | batch["terminal"][:, 0])
         learner = batch["learner"]
         table = lay.inst_table[batch["inst"][:, 0].clamp_min(0)]
-        t = batch["duration"][:, 0] if self.continuous else batch["steps"][:, 0].float()
+        if self.continuous:
+            t = batch["duration"][:, 0] / self.time_unit
+        else:
+            t = batch["steps"][:, 0].float()
         v_next = ctx.values["V"].gather(1, table[:, None]).squeeze(1)
         v_next = torch.where(batch["terminal"][:, 0], torch.zeros_like(v_next), v_next)
-        target = batch["reward"][:, 0] - self.gain[learner] * t + v_next
+        target = batch["reward"][:, 0] - self.reference()[learner] * t + v_next
         idx = self.Q.index(learner, table, batch["state"][:, 0], batch["child"][:, 0])
         old = self.Q.read(idx, valid)
         self.record_td(learner, batch["node"][:, 0], target - old, valid)

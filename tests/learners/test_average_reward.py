@@ -206,6 +206,16 @@ def test_continuous_time_rvi_q_by_hand():
     assert float(learner.gain[0]) == pytest.approx((1.0 + 0.875) / 2)
 
 
+def test_continuous_time_rvi_q_time_unit():
+    g = two_step_graph(False)
+    learner = RVIQLearner(g, 1, alpha=0.5, continuous=True, time_unit=0.5)
+    two_steps(learner, g)
+    # durations count double: step 1 as above (f = 0); f = 1 / 2 per half unit, then
+    # Q(1) <- 0.5 * (1 - 0.5 * 1 + Q(0) = 1) = 0.75; the gain is per original unit
+    assert learner.Q.view(g.root)[:, 0].tolist() == pytest.approx([1.0, 0.75])
+    assert float(learner.gain[0]) == pytest.approx((1.0 + 0.75) / 2 / 0.5)
+
+
 def test_hdr_discounts_by_duration():
     discount = HDRLearner(two_step_graph(True), 1, gamma=0.9, continuous=True).discount
     assert float(discount(torch.tensor(2.5))) == pytest.approx(0.9**2.5)
