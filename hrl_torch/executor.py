@@ -38,7 +38,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import lookup
+from hrl_torch.ops import discount, lookup
 
 
 class SubtaskTimeoutError(RuntimeError):
@@ -309,12 +309,12 @@ class HierarchicalExecutor:
         if self.gamma == 1.0:
             self.disc_reward += active * reward[:, None]
         else:
-            disc = self.gamma**self.time
+            disc = discount(self.gamma, self.time)
             self.disc_reward += active * disc * reward[:, None]
         if g.shaping_nodes and self._obs is not None:
             shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, self.memory)
             shaping = shaping.gather(1, node)
-            self.internal += active * (self.gamma**self.time) * shaping
+            self.internal += active * discount(self.gamma, self.time) * shaping
         self.steps += active
         self.time += active * tau[:, None]
         self.inv_steps += active

@@ -13,3 +13,13 @@ def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 def columns(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """``x[:, index]`` for ``x [B, N, ...]`` and any-shaped ``index`` into ``N``."""
     return x.index_select(1, index.reshape(-1)).view(x.shape[0], *index.shape, *x.shape[2:])
+
+
+def discount(gamma: float, time: torch.Tensor) -> torch.Tensor:
+    """``gamma ** time`` in ``time``'s dtype, computed in float64.
+
+    A float32 ``pow`` rounds differently in its vectorised and scalar code paths, so one element
+    could get another last bit in a batch of another shape, and a population would no longer
+    equal separate runs; through float64 the result agrees.
+    """
+    return (gamma ** time.double()).to(time.dtype)

@@ -80,6 +80,9 @@ class TableBank(nn.Module):
         init: initial value of every entry.
     """
 
+    #: above this many entries, same-step updates are grouped with ``unique`` (no scratch)
+    SCRATCH_LIMIT = 1 << 22
+
     def __init__(
         self, n_learners: int, n_states: torch.Tensor, n_cols: torch.Tensor, init: float = 0.0
     ) -> None:
@@ -145,16 +148,33 @@ class TableBank(nn.Module):
         Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
         """
         flat = self.store
-        if self._count.shape != flat.shape or self._count.device != flat.device:
-            self._count = torch.zeros_like(flat)
-            self._sum = torch.zeros_like(flat)
         weight = mask.to(flat.dtype)
         index = torch.where(mask, flat_index, self.sentinel)  # masked rows hit the sentinel
-        self._count.index_add_(0, index, weight)
-        self._sum.index_add_(0, index, weight * torch.nan_to_num(target))
-        n = self._count.index_select(0, index)
+        n, total = self._count_and_sum(index, weight, weight * torch.nan_to_num(target))
         keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
-        mean = self._sum.index_select(0, index) / n.clamp_min(1.0)
+        mean = total / n.clamp_min(1.0)
         flat.index_put_((index,), keep * flat.index_select(0, index) + (1.0 - keep) * mean)
+
+    def _count_and_sum(self, index, weight, value) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per row: how many rows hit its entry, and the sum of their values (order-free).
+
+        Small tables use scratch buffers the size of the table (no sort, no sync); large ones
+        (flat learners on big state spaces) group the rows with ``unique`` instead of doubling
+        the table's memory.
+        """
+        if self.store.numel() > self.SCRATCH_LIMIT:
+            _, group = torch.unique(index, return_inverse=True)
+            count = torch.zeros(index.shape[0], dtype=value.dtype, device=value.device)
+            total = torch.zeros_like(count)
+            count.index_add_(0, group, weight)
+            total.index_add_(0, group, value)
+            return count.index_select(0, group), total.index_select(0, group)
+        if self._count.shape != self.store.shape or self._count.device != self.store.device:
+            self._count = torch.zeros_like(self.store)
+            self._sum = torch.zeros_like(self.store)
+        self._count.index_add_(0, index, weight)
+        self._sum.index_add_(0, index, value)
+        n, total = self._count.index_select(0, index), self._sum.index_select(0, index)
         self._count.index_fill_(0, index, 0.0)
         self._sum.index_fill_(0, index, 0.0)
+        return n, total

@@ -51,3 +51,16 @@ def test_masked_reads_are_zero():
     idx = torch.tensor([0, 1, 2])
     out = b.read(idx, torch.tensor([True, False, True]))
     assert out.tolist() == [3.0, 0.0, 3.0]
+
+
+def test_large_tables_group_updates_without_scratch_buffers_and_agree(monkeypatch):
+    idx = torch.tensor([0, 3, 3, 3, 7, 0, 13])
+    target = torch.tensor([1.0, 2.0, 4.0, 6.0, 3.0, 5.0, 9.0])
+    mask = torch.tensor([True, True, True, True, True, False, True])
+    small = bank(init=0.5)
+    small.update(idx, target, 0.3, mask)
+    monkeypatch.setattr(TableBank, "SCRATCH_LIMIT", 0)
+    large = bank(init=0.5)
+    large.update(idx, target, 0.3, mask)
+    assert large._count.numel() == 0  # no table-sized buffers
+    assert torch.equal(small.store, large.store)

@@ -16,6 +16,7 @@ import torch
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.three_part import ThreePartLearner
+from hrl_torch.ops import discount
 
 
 class HDRLearner(ThreePartLearner):
@@ -46,13 +47,8 @@ class HDRLearner(ThreePartLearner):
         super().__init__(graph, n_learners, alpha, gamma, all_states, continuous, init, ce_init)
 
     def discount(self, t: torch.Tensor) -> torch.Tensor:
-        """``gamma ** t``, computed in float64.
-
-        A float32 ``pow`` rounds differently in its vectorised and scalar code paths, so the
-        same element could get another last bit in a batch of another shape (a population
-        would then differ from separate runs); through float64 the float32 result agrees.
-        """
-        return (self.gamma ** t.double()).to(t.dtype)
+        """``gamma ** t`` (``hrl_torch.ops.discount``: float64 inside, shape-independent)."""
+        return discount(self.gamma, t)
 
     def primitive_target(self, batch) -> torch.Tensor:
         """The step's reward."""

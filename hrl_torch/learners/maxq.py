@@ -25,7 +25,7 @@ import torch
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, lookup
+from hrl_torch.ops import columns, discount, lookup
 
 
 class MaxQLearner(TabularLearner):
@@ -112,7 +112,7 @@ class MaxQLearner(TabularLearner):
         v_next = ctx.values["V"].gather(1, table)
         v_next_int = ctx.values["V_int"].gather(1, table)
         target, target_int = self.targets(
-            self.gamma ** batch["duration"],
+            discount(self.gamma, batch["duration"]),
             batch["internal_reward"],
             terminal,
             batch["pseudo_reward"],
@@ -129,7 +129,7 @@ class MaxQLearner(TabularLearner):
             late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
             remaining = batch["duration"][..., None] - batch["visited_time"]
             ext, internal = self.targets(
-                self.gamma**remaining,
+                discount(self.gamma, remaining),
                 torch.zeros_like(remaining),
                 terminal[..., None],
                 batch["pseudo_reward"][..., None],

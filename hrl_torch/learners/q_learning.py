@@ -17,7 +17,7 @@ import torch
 
 from hrl_torch.graph import StepContext
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, lookup
+from hrl_torch.ops import columns, discount, lookup
 
 
 class SMDPQLearner(TabularLearner):
@@ -63,11 +63,11 @@ class SMDPQLearner(TabularLearner):
         table = lookup(lay.inst_table, batch["inst"].clamp_min(0))
         terminal = batch["terminal"]
         valid = batch["valid"] & (batch["child_done"] | terminal)
-        discount = self.gamma ** batch["duration"]
+        factor = discount(self.gamma, batch["duration"])
         continuation = torch.where(
             terminal, batch["pseudo_reward"], ctx.values["V"].gather(1, table)
         )
-        target = batch["discounted_reward"] + batch["internal_reward"] + discount * continuation
+        target = batch["discounted_reward"] + batch["internal_reward"] + factor * continuation
         idx = self.Q.index(learner, table, batch["state"], batch["child"])
         self.record_td(learner, batch["node"], target - self.Q.read(idx, valid), valid)
         self.Q.update(idx.reshape(-1), target.reshape(-1), self.alpha(step), valid.reshape(-1))
