@@ -67,16 +67,8 @@ def _bind(obs_key: str):
     return mask
 
 
-def taxi_hierarchy() -> TaskGraph:
-    """Dietterich's MAXQ graph for taxi with his state abstractions."""
-    navs = [Navigate(t) for t in range(4)]
-    nav_names = [n.name for n in navs]
-    root = Subtask(
-        "Root",
-        ["Get", "Put"],
-        n_states=20,
-        abstract=lambda o: o["passenger"] * 4 + o["destination"],
-    )
+def get_and_put(nav_names: list[str]) -> tuple[Subtask, Subtask]:
+    """Get and Put with Dietterich's abstractions (shared with ``agents.taxi_fuel``)."""
     get = Subtask(
         "Get",
         [*nav_names, "Pickup"],
@@ -93,7 +85,12 @@ def taxi_hierarchy() -> TaskGraph:
         terminated=lambda o: o["passenger"] != IN_TAXI,
         child_mask=_bind("destination"),
     )
-    prims = [
+    return get, put
+
+
+def taxi_primitives() -> list[Primitive]:
+    """The six taxi actions; Pickup and Putdown with the abstractions of Get and Put."""
+    return [
         Primitive("South", 0),
         Primitive("North", 1),
         Primitive("East", 2),
@@ -101,7 +98,19 @@ def taxi_hierarchy() -> TaskGraph:
         Primitive("Pickup", 4, 125, lambda o: o["taxi_loc"] * 5 + o["passenger"]),
         Primitive("Putdown", 5, 100, lambda o: o["taxi_loc"] * 4 + o["destination"]),
     ]
-    return TaskGraph("Root", [root, get, put, *navs, *prims], n_actions=N_ACTIONS)
+
+
+def taxi_hierarchy() -> TaskGraph:
+    """Dietterich's MAXQ graph for taxi with his state abstractions."""
+    navs = [Navigate(t) for t in range(4)]
+    root = Subtask(
+        "Root",
+        ["Get", "Put"],
+        n_states=20,
+        abstract=lambda o: o["passenger"] * 4 + o["destination"],
+    )
+    get, put = get_and_put([n.name for n in navs])
+    return TaskGraph("Root", [root, get, put, *navs, *taxi_primitives()], n_actions=N_ACTIONS)
 
 
 def flat_graph(n_states: int = 500, n_actions: int = N_ACTIONS) -> TaskGraph:

@@ -38,7 +38,7 @@ every subtask), ``maxq-q`` and flat ``q`` over the 6,500 states.
 
 from __future__ import annotations
 
-from agents.taxi import IN_TAXI, PESSIMISTIC_INIT, Navigate, _bind, flat_graph
+from agents.taxi import PESSIMISTIC_INIT, Navigate, flat_graph, get_and_put, taxi_primitives
 from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Linear
@@ -62,29 +62,13 @@ class NavigateToFuel(Navigate):
 def taxi_fuel_hierarchy() -> TaskGraph:
     """Dietterich's taxi graph with Refuel (see the module docstring)."""
     navs = [Navigate(t) for t in range(4)]
-    nav_names = [n.name for n in navs]
     root = Subtask(
         "Root",
         ["Get", "Put", "Refuel"],
         n_states=5 * 4 * N_FUEL,
         abstract=lambda o: (o["passenger"] * 4 + o["destination"]) * N_FUEL + o["fuel"],
     )
-    get = Subtask(
-        "Get",
-        [*nav_names, "Pickup"],
-        n_states=125,
-        abstract=lambda o: o["taxi_loc"] * 5 + o["passenger"],
-        terminated=lambda o: o["passenger"] == IN_TAXI,
-        child_mask=_bind("passenger"),
-    )
-    put = Subtask(
-        "Put",
-        [*nav_names, "Putdown"],
-        n_states=100,
-        abstract=lambda o: o["taxi_loc"] * 4 + o["destination"],
-        terminated=lambda o: o["passenger"] != IN_TAXI,
-        child_mask=_bind("destination"),
-    )
+    get, put = get_and_put([n.name for n in navs])
     refuel = Subtask(
         "Refuel",
         ["Navigate_F", "Fillup"],
@@ -92,15 +76,7 @@ def taxi_fuel_hierarchy() -> TaskGraph:
         abstract=lambda o: o["taxi_loc"],
         terminated=lambda o: o["fuel"] == CAPACITY,
     )
-    prims = [
-        Primitive("South", 0),
-        Primitive("North", 1),
-        Primitive("East", 2),
-        Primitive("West", 3),
-        Primitive("Pickup", 4, 125, lambda o: o["taxi_loc"] * 5 + o["passenger"]),
-        Primitive("Putdown", 5, 100, lambda o: o["taxi_loc"] * 4 + o["destination"]),
-        Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"]),
-    ]
+    prims = [*taxi_primitives(), Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"])]
     nodes = [root, get, put, refuel, *navs, NavigateToFuel(), *prims]
     return TaskGraph("Root", nodes, n_actions=N_ACTIONS)
 
