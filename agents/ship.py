@@ -41,7 +41,7 @@ from torch import nn
 from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, wrap_degrees
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.exploration import EpsilonGreedy, Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.hybrid import EpisodeBins, HybridLearner, TriggeredEpsilon
 from hrl_torch.learners.pg import ActorCriticLearner, HPGRLLearner, PGConfig
@@ -525,7 +525,7 @@ DOMAIN = DomainSpec(
         "flat-pg": AlgoSpec(
             make_graph=lambda: flat_graph(PARAMS.out_of_bounds_reward),
             make_learner=make_flat_pg,
-            make_exploration=lambda config: EpsilonGreedy(0.0),
+            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
             train=_TRAIN,
             envs_per_learner=512,
             description="flat PGRL: Gaussian over 9 tilings of 20 x 20 x 36 x 5",
@@ -533,7 +533,7 @@ DOMAIN = DomainSpec(
         "actor-critic": AlgoSpec(
             make_graph=lambda: flat_graph(PARAMS.out_of_bounds_reward),
             make_learner=make_actor_critic,
-            make_exploration=lambda config: EpsilonGreedy(0.0),
+            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
             train=_TRAIN,
             envs_per_learner=512,
             description="actor-critic (Konda): flat PGRL actor, 5-D tile-coded Q critic",

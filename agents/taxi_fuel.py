@@ -41,7 +41,7 @@ from __future__ import annotations
 from agents.taxi import PESSIMISTIC_INIT, Navigate, flat_graph, get_and_put, taxi_primitives
 from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import EpsilonGreedy, Greedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
@@ -115,7 +115,7 @@ DOMAIN = DomainSpec(
         "hpgrl": AlgoSpec(
             make_graph=taxi_fuel_hierarchy,
             make_learner=make_hpgrl,
-            make_exploration=lambda config: EpsilonGreedy(0.0),
+            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
             train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="HPGRL (Algorithm 3) with tabular softmax policies at every subtask",

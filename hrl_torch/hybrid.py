@@ -184,9 +184,9 @@ class HybridLearner(Learner):
             if self.epsilon is not None:
                 self.epsilon.observe(ended, trigger)
 
-    def make_policy(self, exploration: Exploration, rng) -> HybridPolicy:
-        """Training policy (``Greedy`` exploration: evaluation, PG nodes on their modes)."""
-        return HybridPolicy(self, exploration, rng)
+    def make_policy(self, exploration: Exploration, rng, evaluate: bool = False) -> HybridPolicy:
+        """Training policy, or with ``evaluate`` the greedy one (PG nodes on their modes)."""
+        return HybridPolicy(self, exploration, rng, evaluate)
 
 
 class HybridPolicy:
@@ -200,12 +200,16 @@ class HybridPolicy:
         exploration: the value nodes' strategy (replaced by epsilon-greedy with the learner's
             ``TriggeredEpsilon`` in training when it has one).
         rng: random numbers for the rows.
+        evaluate: every node greedy (value nodes on their best child, PG nodes on their
+            modes), nothing recorded.
     """
 
-    def __init__(self, learner: HybridLearner, exploration: Exploration, rng) -> None:
+    def __init__(
+        self, learner: HybridLearner, exploration: Exploration, rng, evaluate: bool = False
+    ) -> None:
         self.learner = learner
         self.exploration = exploration
-        self.greedy = isinstance(exploration, Greedy)
+        self.greedy = evaluate
         self.rng = rng
         self._first = 0
 

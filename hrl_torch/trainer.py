@@ -129,14 +129,14 @@ class Trainer:
         self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
 
     # --- hook (policy-gradient and hybrid learners): a learner may supply its own policy ---
-    def _make_policy(self, exploration: Exploration, rng: BatchRNG):
-        """``learner.make_policy(exploration, rng)`` if the learner has one, else ValuePolicy.
+    def _make_policy(self, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
+        """``learner.make_policy(exploration, rng, evaluate)`` if it has one, else ValuePolicy.
 
-        ``Greedy`` exploration asks for the evaluation policy (PG nodes act on their modes).
+        ``evaluate`` asks for the evaluation policy (PG nodes act on their modes).
         """
         make = getattr(self.learner, "make_policy", None)
         if make is not None:
-            return make(exploration, rng)
+            return make(exploration, rng, evaluate=evaluate)
         return ValuePolicy(self.learner, exploration, rng)
 
     # --- end of hook ---
@@ -238,7 +238,7 @@ class Trainer:
             self.learner.gamma,
             self.executor_config,
         )
-        policy = self._make_policy(Greedy(), self._eval_rng())
+        policy = self._make_policy(Greedy(), self._eval_rng(), evaluate=True)
         rows = env.learner_of_row()
         obs = env.reset()
         ctx = self.graph.context(obs, rows, executor.memory)

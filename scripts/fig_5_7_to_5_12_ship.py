@@ -187,7 +187,7 @@ def greedy_paths(learner, graph, starts: torch.Tensor, max_steps: int = 1000):
     env = ShipSteeringEnv(list(range(p)), n, max_episode_steps=max_steps)
     obs = env.reset_to(starts.repeat(p, 1))
     executor = HierarchicalExecutor(graph, env.batch_size, n, 1.0, DOMAIN.algos["hybrid"].executor)
-    policy = learner.make_policy(Greedy(), BatchRNG(env.seeds, n, "figure"))
+    policy = learner.make_policy(Greedy(), BatchRNG(env.seeds, n, "figure"), evaluate=True)
     rows = env.learner_of_row()
     direction_of = {graph.index[name]: k for k, name in enumerate(DIRECTION_NODES)}
     positions = [obs["observation"][:, :2].clone()]

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import torch
 
-from hrl_torch.exploration import Greedy, Schedule, as_schedule, masked_argmax
+from hrl_torch.exploration import Schedule, as_schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.ops import lookup
@@ -313,11 +313,15 @@ class HPGRLLearner(Learner):
             state["pending_value"][rows, slot] = value
         return choice, flag, action
 
-    def make_policy(self, exploration, rng) -> PGPolicy:
-        """The policy of a graph whose nodes are all PG (``Greedy`` exploration: evaluation)."""
+    def make_policy(self, exploration, rng, evaluate: bool = False) -> PGPolicy:
+        """The policy of a graph whose nodes are all PG.
+
+        Training samples from the policies whatever ``exploration`` is (PG nodes explore by
+        their own randomness); ``evaluate=True`` acts on their modes and records nothing.
+        """
         if bool((self.node_group[self.graph.subtasks()] < 0).any()):
             raise GraphError("not every subtask is a PG node: use hrl_torch.hybrid.HybridLearner")
-        return PGPolicy(self, rng, greedy=isinstance(exploration, Greedy))
+        return PGPolicy(self, rng, greedy=evaluate)
 
     # ------------------------------------------------------------------ learning
     def rewards(self, batch, node: torch.Tensor, depths: torch.Tensor) -> torch.Tensor:

@@ -8,9 +8,11 @@ import pytest
 import torch
 
 from hrl_torch.executor import HierarchicalExecutor
+from hrl_torch.exploration import Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig, PGPolicy
 from hrl_torch.rng import BatchRNG
+from hrl_torch.trainer import TrainConfig, Trainer
 from tests.helpers import TableEnv
 
 # a 5-state corridor: a0 moves right, a1 moves left (0 stays); reaching 4 ends the episode
@@ -195,3 +197,23 @@ def test_online_and_renewal_updates_sum_to_the_same_per_cycle():
         results.append(learner.grad_sum.clone())
     assert results[0].abs().sum() > 0
     assert torch.allclose(results[0], results[1], atol=1e-5)
+
+
+def test_training_samples_whatever_the_exploration_and_evaluation_records_nothing():
+    # a PG learner trained with Greedy() exploration must still sample and learn; only the
+    # trainer's evaluation acts on the modes
+    graph = hierarchy()
+    env = TableEnv(NEXT, REWARD, torch.arange(N) == TERMINAL, STARTS, [0, 1], 16)
+    eval_env = TableEnv(NEXT, REWARD, torch.arange(N) == TERMINAL, STARTS, [7, 7], 4, 50)
+    learner = HPGRLLearner(graph, 2, PGConfig(alpha=0.05, trace_len=400))
+    trainer = Trainer(
+        env, graph, learner, Greedy(), TrainConfig(steps=200, progress=False), eval_env=eval_env
+    )
+    assert not trainer.policy.greedy
+    trainer.train()
+    assert bool((learner.theta != 0).any())
+    before = learner.theta.clone()
+    learner.set_extra_state({})
+    trainer.evaluate()
+    assert torch.equal(learner.theta, before)
+    assert not learner.get_extra_state()  # evaluation recorded no likelihood-ratio terms
