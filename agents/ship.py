@@ -389,6 +389,7 @@ class ShipHyperparams:
         sigma: the Gaussian policies' standard deviation before the squash (text: 1).
         online: HPGRL updates every step (Algorithm 3 line 16) or once per renewal cycle.
         pg_beta: the low-level eligibility discount (1: Equation 5.3; ours).
+        pg_baseline: step size of the low-level reward-to-go baseline (0: none; ours).
         out_of_bounds_reward: the root's reward for leaving the square (text: none).
     """
 
@@ -405,6 +406,7 @@ class ShipHyperparams:
     sigma: float = 1.0
     online: bool = False
     pg_beta: float = 0.95
+    pg_baseline: float = 0.0
     out_of_bounds_reward: float = -1000.0
 
 
@@ -424,6 +426,7 @@ def make_hybrid(
             sigma=params.sigma,
             online=params.online,
             beta=params.pg_beta,
+            baseline=params.pg_baseline,
             trace_len=LOW_LEVEL_GUARD,
         ),
         direction_groups(),

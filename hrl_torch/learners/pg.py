@@ -84,6 +84,11 @@ class PGConfig:
         trace_len: likelihood-ratio terms kept per invocation; an invocation that selects more
             children than this raises (bound invocations with the executor's guard).
         init: initial value of every policy parameter.
+        baseline: step size of ``b``, a running mean of the reward-to-go per learner and
+            parameter group, subtracted from it: ``theta += alpha sum_n (R_n - b) grad mu / mu``
+            over the cycle. A constant baseline keeps Equation 5.2 unbiased (``b`` moves only
+            after the cycle used it) and cuts its variance. 0 (default): Algorithm 3 as written.
+            Needs ``online=False`` (``R_n`` is known at the renewal).
         frozen: accumulate ``sum (R + r~) z`` into ``grad_sum`` instead of changing ``theta``
             (gradient estimates for tests and diagnostics).
     """
@@ -96,7 +101,12 @@ class PGConfig:
     beta: float = 1.0
     trace_len: int = 256
     init: float = 0.0
+    baseline: float = 0.0
     frozen: bool = False
+
+    def __post_init__(self) -> None:
+        if self.baseline and self.online:
+            raise ValueError("PGConfig.baseline needs online=False (the reward-to-go)")
 
 
 class HPGRLLearner(Learner):
@@ -142,6 +152,7 @@ class HPGRLLearner(Learner):
         self.register_buffer(
             "cycles", torch.zeros(n_learners, len(self.group_names)), persistent=False
         )
+        self.register_buffer("reward_to_go_mean", torch.zeros(n_learners, len(self.group_names)))
         self._rows: dict[str, torch.Tensor] = {}
 
     # ------------------------------------------------------------------ layout
@@ -365,7 +376,8 @@ class HPGRLLearner(Learner):
         ended = invocation_ended(batch, depths) & (count > 0)
         # line 16: every entry of z weighted by this step's R + r~ now (online), or by its
         # reward-to-go once the cycle ends (Equation 5.2)
-        self._apply(rows, valid if cfg.online else ended, self.alpha(step))
+        cell = batch["learner"][:, None] * len(self.group_names) + self.node_group[node].clamp(0)
+        self._apply(rows, valid if cfg.online else ended, self.alpha(step), cell)
         if cfg.frozen and bool(ended.any()):
             gid = self.node_group[node]
             self.cycles.view(-1).index_add_(
@@ -375,12 +387,13 @@ class HPGRLLearner(Learner):
             )
         rows["count"] = torch.where(ended, 0, count)
 
-    def _apply(self, rows, pairs: torch.Tensor, alpha: float) -> None:
+    def _apply(self, rows, pairs: torch.Tensor, alpha: float, cell: torch.Tensor) -> None:
         """``theta += alpha * sum_n w_n g_n`` over the ring entries of the selected (row, depth).
 
         Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).
-        At the renewal: ``w_n = sum_{k >= n} beta^(k - n) r_k``, the (discounted) reward-to-go
-        of Equation 5.2. Only the filled entries of the selected pairs are read.
+        At the renewal: ``w_n = sum_{k >= n} beta^(k - n) r_k - b``, the (discounted)
+        reward-to-go of Equation 5.2 less the baseline of the pair's (learner, group) ``cell``
+        ``[B, S]``. Only the filled entries of the selected pairs are read.
         """
         pair = pairs.view(-1).nonzero().squeeze(1)  # flat (row, depth) ids
         if pair.numel() == 0:
@@ -398,6 +411,8 @@ class HPGRLLearner(Learner):
         else:
             scale = beta ** slot.double()
             weight = (reward * scale).flip(1).cumsum(1).flip(1) / scale
+        if self.config.baseline:
+            weight = weight - self._baseline(lookup(cell.view(-1), pair), weight, filled)
         sel = filled.nonzero()
         entry = pair[sel[:, 0]] * k1 + sel[:, 1]  # flat ring-entry ids
         index = lookup(rows["index"].view(-1, self.width), entry)
@@ -409,6 +424,18 @@ class HPGRLLearner(Learner):
             return
         self.theta.index_add_(0, index.reshape(-1), (alpha * w[:, None] * value).reshape(-1))
         self.theta[-1] = 0.0
+
+
+    def _baseline(self, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tensor):
+        """``b`` of each cycle's ``cell`` ``[n, 1]``; then ``b += rate (mean R_n - b)``."""
+        b = self.reward_to_go_mean.view(-1)
+        used = b[cell][:, None].double()
+        sums = torch.zeros_like(b, dtype=torch.float64).index_add_(0, cell, (togo * filled).sum(1))
+        counts = torch.zeros_like(sums).index_add_(0, cell, filled.sum(1).double())
+        seen = counts > 0
+        mean = (sums / counts.clamp_min(1)).float()
+        b.add_(torch.where(seen, self.config.baseline * (mean - b), 0.0))
+        return used
 
 
 class PGPolicy:

@@ -95,12 +95,13 @@ def exact_gradient(objective, theta, name):
     return grad
 
 
-def run(online, n_learners=12, envs=128, steps=400):
+def run(online, n_learners=12, envs=128, steps=400, baseline=0.0):
     """Frozen HPGRL: per learner, summed estimates and the invocations' start states."""
     graph = hierarchy()
     seeds = list(range(n_learners))
     env = TableEnv(NEXT, REWARD, torch.arange(N) == TERMINAL, STARTS, seeds, envs)
-    learner = HPGRLLearner(graph, n_learners, PGConfig(frozen=True, online=online, trace_len=400))
+    config = PGConfig(frozen=True, online=online, trace_len=400, baseline=baseline)
+    learner = HPGRLLearner(graph, n_learners, config)
     theta = initial_theta()
     for p in range(n_learners):
         for k, value in theta.items():
@@ -217,3 +218,22 @@ def test_training_samples_whatever_the_exploration_and_evaluation_records_nothin
     trainer.evaluate()
     assert torch.equal(learner.theta, before)
     assert not learner.get_extra_state()  # evaluation recorded no likelihood-ratio terms
+
+
+def test_a_baseline_keeps_the_mean_and_lowers_the_variance_of_the_estimate():
+    # same draws with and without b: the difference is -b sum_n grad mu / mu per cycle, which
+    # must average to zero
+    plain, _, _ = run(online=False)
+    centred, _, _ = run(online=False, baseline=0.05)
+    assert (centred.reward_to_go_mean != 0).all()
+    for name in ("Root", "A", "B"):
+        p, c = per_learner_estimates(plain, name), per_learner_estimates(centred, name)
+        diff = c - p
+        se = diff.std(0) / len(diff) ** 0.5
+        assert (diff.mean(0).abs() <= 4 * se + 1e-4).all(), (name, diff.mean(0), se)
+        assert c.std(0).mean() < p.std(0).mean(), name
+
+
+def test_a_baseline_needs_renewal_updates():
+    with pytest.raises(ValueError, match="online=False"):
+        PGConfig(baseline=0.1)
