@@ -135,3 +135,12 @@ def test_grid_state():
 def test_tile_coders_have_the_dissertation_sizes():
     assert low_level_tile_coder().n_features == 9 * 4_500 == 40_500
     assert flat_tile_coder().tiles_per_tiling == 72_000
+
+
+def test_a_proportional_controller_solves_both_low_level_subtasks_from_any_heading():
+    # the low-level subtasks are solvable from every start (scripts/ship_low_level_check.py)
+    from scripts.ship_low_level_check import proportional, run
+
+    for subtask in (0, 1):
+        outcome, _, _ = run(subtask, proportional, 1000, seed=0)
+        assert (outcome == 1).float().mean() >= 0.99
