@@ -425,7 +425,6 @@ class HPGRLLearner(Learner):
         self.theta.index_add_(0, index.reshape(-1), (alpha * w[:, None] * value).reshape(-1))
         self.theta[-1] = 0.0
 
-
     def _baseline(self, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tensor):
         """``b`` of each cycle's ``cell`` ``[n, 1]``; then ``b += rate (mean R_n - b)``."""
         b = self.reward_to_go_mean.view(-1)
