@@ -194,16 +194,9 @@ class RARLearner(TabularLearner):
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``L^(i, s, .) = H^(., s) + C(i, s, .)`` for the instances ``inst [B]``."""
-        lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
-        children = lay.table_children[table]
-        child_v = ctx.values["H"].gather(1, children.clamp_min(0))
-        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
-        idx = self.C.row_index(ctx.learner, table, state, lay.max_children)
-        return child_v + self.C.read(idx, children >= 0)
-
-    def _time(self, batch, steps: str = "steps", duration: str = "duration") -> torch.Tensor:
-        return batch[duration] if self.continuous else batch[steps].float()
+        c, table = self.instance_rows(self.C, ctx, inst)
+        children = self.layout.table_children[table].clamp_min(0)
+        return ctx.values["H"].gather(1, children) + c
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Lines 5, 18/20 (with the gains ``g_t``), then the gains (lines 23-24)."""
@@ -215,7 +208,7 @@ class RARLearner(TabularLearner):
         child_table = lay.table_children[table, batch["child"]].clamp_min(0)
         terminal = batch["terminal"]
         valid = batch["valid"] & (batch["child_done"] | terminal)
-        t = self._time(batch)
+        t = self.time_of(batch)
         gains = self.gain
         g_i = gains[learner, table]
         g_a = torch.where(lay.table_is_primitive[child_table], 0.0, gains[learner, child_table])
@@ -227,7 +220,7 @@ class RARLearner(TabularLearner):
         self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
         if self.all_states and "visited_state" in batch.keys():
             late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
-            left = t[..., None] - self._time(batch, "visited_steps", "visited_time")
+            left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             target_k = h_next[..., None] - (g_i - g_a)[..., None] * left
             vidx = self.C.index(
                 learner[..., None],

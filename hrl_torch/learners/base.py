@@ -80,6 +80,7 @@ class TabularLearner(Learner):
         self.alpha = as_schedule(alpha)
         self.gamma = float(gamma)
         self.layout = TableLayout(graph, per_instance)
+        self.continuous = False  # continuous-time learners measure time by durations
 
     def completion_bank(self, init: float = 0.0) -> TableBank:
         """A ``[n_states, n_children]`` table for every non-primitive table node."""
@@ -109,6 +110,18 @@ class TabularLearner(Learner):
         )
         return bank.read(idx, available)
 
+    def instance_index(
+        self, bank: TableBank, ctx: StepContext, inst: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Row index ``[B, A]`` into ``bank`` for the instances ``inst [B]``, and their tables.
+
+        Banks built alike (``completion_bank``) share the index.
+        """
+        lay = self.layout
+        table = lookup(lay.inst_table, inst.clamp_min(0))
+        state = ctx.abstract.gather(1, lookup(lay.table_node, table)[:, None]).squeeze(1)
+        return bank.row_index(ctx.learner, table, state, lay.max_children), table
+
     def instance_rows(
         self, bank: TableBank, ctx: StepContext, inst: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,11 +129,12 @@ class TabularLearner(Learner):
 
         Padding slots (beyond a node's children) read 0.
         """
-        lay = self.layout
-        table = lookup(lay.inst_table, inst.clamp_min(0))
-        state = ctx.abstract.gather(1, lookup(lay.table_node, table)[:, None]).squeeze(1)
-        idx = bank.row_index(ctx.learner, table, state, lay.max_children)
-        return bank.read(idx, lookup(lay.table_child_valid, table)), table
+        idx, table = self.instance_index(bank, ctx, inst)
+        return bank.read(idx, lookup(self.layout.table_child_valid, table)), table
+
+    def time_of(self, batch, steps: str = "steps", duration: str = "duration") -> torch.Tensor:
+        """Time of the children of ``batch``: steps ``N`` (discrete) or durations (continuous)."""
+        return batch[duration] if self.continuous else batch[steps].float()
 
 
 class ValuePolicy:

@@ -99,11 +99,9 @@ class QLambdaLearner(TabularLearner):
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``Q(i, s, .)`` for the instances ``inst [B]`` (0 for rows on other nodes)."""
         lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
+        idx, table = self.instance_index(self.Q, ctx, inst)
         node = lay.table_node[table]
-        state = ctx.abstract.gather(1, node[:, None]).squeeze(1)
-        idx = self.Q.row_index(ctx.learner, table, state, lay.max_children)
-        return self.Q.read(idx, (lay.table_children[table] >= 0) & self.value_node[node, None])
+        return self.Q.read(idx, lay.table_child_valid[table] & self.value_node[node, None])
 
     # ------------------------------------------------------------------ per-row traces
     def _row_state(self, b: int, device: torch.device) -> dict[str, torch.Tensor]:

@@ -96,11 +96,7 @@ class RVIQLearner(TabularLearner):
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``Q(s, .)``."""
-        lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
-        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
-        idx = self.Q.row_index(ctx.learner, table, state, lay.max_children)
-        return self.Q.read(idx, lay.table_children[table] >= 0)
+        return self.instance_rows(self.Q, ctx, inst)[0]
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """One RVI Q-learning step for every primitive step (level 0 of the flat stack)."""

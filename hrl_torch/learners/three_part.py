@@ -115,10 +115,6 @@ class ThreePartLearner(TabularLearner):
         """Target of ``V(p, x)`` for the primitive steps of ``batch`` ``[B]``."""
         raise NotImplementedError
 
-    def time_of(self, batch, steps: str = "steps", duration: str = "duration") -> torch.Tensor:
-        """Time of the children of ``batch``: steps ``N`` (discrete) or durations (continuous)."""
-        return batch[duration] if self.continuous else batch[steps].float()
-
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:
         """Bottom-up ``V``, ``CE(., a*)`` and ``Q(., a*)``; top-down ``W``, for every instance."""
@@ -155,12 +151,9 @@ class ThreePartLearner(TabularLearner):
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """``Q(i, x, .) = V(., x) + C(i, x, .) + CE(i, x, .)`` for the instances ``inst [B]``."""
         lay = self.layout
-        table = lay.inst_table[inst.clamp_min(0)]
-        children = lay.table_children[table]
-        child_v = ctx.values["V"].gather(1, children.clamp_min(0))
-        state = ctx.abstract.gather(1, lay.table_node[table][:, None]).squeeze(1)
-        idx = self.C.row_index(ctx.learner, table, state, lay.max_children)
-        ok = children >= 0
+        idx, table = self.instance_index(self.C, ctx, inst)  # CE is laid out as C
+        child_v = ctx.values["V"].gather(1, lay.table_children[table].clamp_min(0))
+        ok = lay.table_child_valid[table]
         return child_v + self.C.read(idx, ok) + self.CE.read(idx, ok)
 
     # ------------------------------------------------------------------ updates
