@@ -124,18 +124,13 @@ class HARLearner(ThreePartLearner):
 
     def primitive_target(self, batch) -> torch.Tensor:
         """``r - g t`` (line 5; continuous time: ``k + r tau - g tau``)."""
-        return batch["prim_reward"] - self.gain[batch["learner"]] * self._prim_time(batch)
-
-    def _prim_time(self, batch) -> torch.Tensor:
-        if self.continuous:
-            return batch["prim_duration"]
-        return torch.ones_like(batch["prim_reward"])
+        return batch["prim_reward"] - self.gain[batch["learner"]] * self.primitive_time(batch)
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Lines 5, 17-21 (all with the gain ``g_t``), then the gain (lines 6-7)."""
         super().update(batch, ctx, step)
         seen = batch["prim_valid"] & batch["prim_greedy"]  # M_i and its ancestors non-random
-        self.gains.add(batch["learner"], 0, batch["prim_reward"], self._prim_time(batch), seen)
+        self.gains.add(batch["learner"], 0, batch["prim_reward"], self.primitive_time(batch), seen)
 
 
 class RARLearner(TabularLearner):

@@ -136,6 +136,12 @@ class TabularLearner(Learner):
         """Time of the children of ``batch``: steps ``N`` (discrete) or durations (continuous)."""
         return batch[duration] if self.continuous else batch[steps].float()
 
+    def primitive_time(self, batch) -> torch.Tensor:
+        """Time of the primitive steps of ``batch``: 1 each (discrete) or their durations."""
+        if self.continuous:
+            return batch["prim_duration"]
+        return torch.ones_like(batch["prim_reward"])
+
 
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.

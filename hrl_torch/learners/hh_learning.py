@@ -151,9 +151,10 @@ class HHLearner(TabularLearner):
         self.prim_count.data.view(-1).index_add_(0, p_idx, m)
         self.prim_reward.data.view(-1).index_add_(0, p_idx, batch["prim_reward"] * m)
         self.prim_time.data.view(-1).index_add_(0, p_idx, batch["prim_duration"] * m)
-        prim_time = batch["prim_duration"] if self.continuous else torch.ones_like(m)
         greedy = seen & batch["prim_greedy"]
-        self.gains.add(batch["learner"], 0, batch["prim_reward"], prim_time, greedy)
+        self.gains.add(
+            batch["learner"], 0, batch["prim_reward"], self.primitive_time(batch), greedy
+        )
 
     def _backup(self, ctx: StepContext) -> None:
         """``H(i, s) <- max_a [...]`` for every subtask at the states of ``ctx`` (evaluated)."""
