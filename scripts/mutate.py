@@ -76,8 +76,8 @@ def run_pytest(copy: Path, args: list[str], timeout: float) -> tuple[bool, str]:
     return out.returncode == 0, lines[-1] if lines else out.stderr.strip()[-200:]
 
 
-def test_mutant(m: Mutant, copy: Path, marker: str, workers: int, timeout: float) -> str:
-    """Apply ``m`` in ``copy``, run the suite, restore; returns the failing run's last line or ''."""
+def run_mutant(m: Mutant, copy: Path, marker: str, workers: int, timeout: float) -> str:
+    """Apply ``m`` in ``copy``, run the suite and restore; the failing line, or ""."""
     target = copy / m.file
     original = target.read_text()
     target.write_text(original.replace(m.find, m.replace, 1))
@@ -122,7 +122,7 @@ def main() -> int:
             sys.exit(f"the fast suite fails without any mutant ({line}): fix it first")
         for k, m in enumerate(chosen, 1):
             start = time.perf_counter()
-            failure = test_mutant(m, copy, "not slow", args.workers, args.timeout)
+            failure = run_mutant(m, copy, "not slow", args.workers, args.timeout)
             took = time.perf_counter() - start
             verdict = f"killed ({failure})" if failure else "SURVIVED"
             print(f"[{k}/{len(chosen)}] {m.name}: {verdict} [{took:.0f} s]", flush=True)
@@ -131,7 +131,7 @@ def main() -> int:
         slow_killed = []
         if args.slow:
             for m in survivors:
-                failure = test_mutant(m, copy, "slow", args.workers, args.timeout)
+                failure = run_mutant(m, copy, "slow", args.workers, args.timeout)
                 print(f"[slow] {m.name}: {'killed' if failure else 'SURVIVED'} {failure}")
                 if failure:
                     slow_killed.append(m)
