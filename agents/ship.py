@@ -39,7 +39,7 @@ from tensordict import TensorDict
 from torch import nn
 
 from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, wrap_degrees
-from hrl_torch.executor import ExecutorConfig
+from hrl_torch.executor import LEVEL, PRIMITIVE, ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -329,18 +329,19 @@ class ShipMonitor(nn.Module):
 
     def observe(self, batch, ctx) -> tuple[torch.Tensor, torch.Tensor]:
         """Count one transition batch; return episodes ended ``[P]`` and the trigger ``[P]``."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         b, p = batch.batch_size[0], self.episodes.events.shape[0]
         if "steps" not in self._rows or self._rows["steps"].shape[0] != b:
             self._rows = {"steps": torch.zeros(b), "calls": torch.zeros(b)}
         rows = self._rows
-        rows["steps"] += batch["prim_valid"].float()
-        root = batch["valid"][:, 0]
-        ended = root & (batch["terminal"][:, 0] | batch["truncated"][:, 0])
+        rows["steps"] += prim["valid"].float()
+        root = level["valid"][:, 0]
+        ended = root & (level["terminal"][:, 0] | level["truncated"][:, 0])
         if self.hierarchical:
             rows["calls"] += root.float()
-            executed = root & batch["child_done"][:, 0]
-            kind = self.kind_of_node[batch["node"][:, 1]]
-            local = batch["next_features"][:, 1]
+            executed = root & level["child_done"][:, 0]
+            kind = self.kind_of_node[level["node"][:, 1]]
+            local = level["next_features"][:, 1]
             success = local_success(local, kind.clamp_min(0))
             for t, bins in enumerate(self.low):
                 bins.add(executed & (kind == t), {"success": success})

@@ -120,7 +120,9 @@ def _get_part(part: int) -> Subtask:
     """GetPartI: in the machine room with an empty AGV, go to machine ``Mi`` and load."""
     machine = MACHINES[part - 1]
     return Subtask(
-        f"GetPart{part}", [f"NavM{part}", "Load"], n_states=N_LOCATIONS,
+        f"GetPart{part}",
+        [f"NavM{part}", "Load"],
+        n_states=N_LOCATIONS,
         abstract=lambda o: o["location"],
         initiable=lambda o: (o["status"] == EMPTY) & (o["room"] == MACHINE_ROOM),
         terminated=lambda o: o["status"] != EMPTY,
@@ -140,7 +142,9 @@ def _deliver_part(part: int) -> Subtask:
         return torch.stack([carrying, carrying & at_goal, *[~carrying] * len(MOVES)], 1)
 
     return Subtask(
-        f"DeliverPart{part}", [f"NavG{part}", "Unload", *MOVES], n_states=2 * N_LOCATIONS,
+        f"DeliverPart{part}",
+        [f"NavG{part}", "Unload", *MOVES],
+        n_states=2 * N_LOCATIONS,
         abstract=lambda o: o["location"] * 2 + (o["status"] != EMPTY).long(),
         initiable=lambda o: o["status"] == part,
         terminated=lambda o: (o["status"] == EMPTY) & (o["room"] == MACHINE_ROOM),
@@ -151,12 +155,16 @@ def _deliver_part(part: int) -> Subtask:
 def small_agv_hierarchy() -> TaskGraph:
     """The reconstructed Figure 4.2 task graph with the state abstractions above."""
     root = Subtask(
-        "Root", ["GetPart1", "GetPart2", "DeliverPart1", "DeliverPart2"], n_states=N_STATES,
+        "Root",
+        ["GetPart1", "GetPart2", "DeliverPart1", "DeliverPart2"],
+        n_states=N_STATES,
         abstract=lambda o: o["observation"],
     )
     navs = [
-        Navigate("NavM1", MACHINES[0], MACHINE_ROOM), Navigate("NavM2", MACHINES[1], MACHINE_ROOM),
-        Navigate("NavG1", GOALS[0]), Navigate("NavG2", GOALS[1]),
+        Navigate("NavM1", MACHINES[0], MACHINE_ROOM),
+        Navigate("NavM2", MACHINES[1], MACHINE_ROOM),
+        Navigate("NavG1", GOALS[0]),
+        Navigate("NavG2", GOALS[1]),
     ]
     prims = [Primitive(name, k) for k, name in enumerate(MOVES)]
     prims += [Primitive("Load", 4), Primitive("Unload", 5, N_STATES, lambda o: o["observation"])]

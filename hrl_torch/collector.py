@@ -10,9 +10,8 @@ auto-reset (``hrl_torch.env``) and TorchRL sees an env that never ends:
   ``step_duration``, ``step_terminated``, ``step_truncated``, ``is_init``), so after TorchRL's
   ``step_mdp`` the policy still sees them.
 - ``HierarchicalPolicy`` is a ``TensorDictModuleBase`` that runs one step of the training loop
-  in its ``forward``: graph context, ``learner.evaluate``, ``executor.observe`` (the SMDP
-  transitions that ended), ``learner.update``, ``executor.act``. It is the same sequence as
-  ``Trainer.train_step``, so both paths learn the same tables from the same seeds.
+  in its ``forward``: ``HierarchicalAgent.step``, the step ``Trainer.train_step`` runs, so both
+  paths learn the same tables from the same seeds.
 - ``collect`` iterates a ``Collector`` over them until a stop condition holds; the collected
   frames are not needed for learning (the policy learns as it acts) and are dropped.
 
@@ -31,10 +30,11 @@ from torchrl.collectors import Collector
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.env import BatchedEnv
-from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor
+from hrl_torch.executor import ExecutorConfig
 from hrl_torch.graph import TaskGraph
-from hrl_torch.learners.base import Learner, ValuePolicy
+from hrl_torch.learners.base import Learner
 from hrl_torch.rng import BatchRNG
 
 #: the step fields of a BatchedEnv output, as observation keys (TorchRL keeps ``reward`` apart)
@@ -155,20 +155,25 @@ class HierarchicalPolicy(TensorDictModuleBase):
     ) -> None:
         super().__init__()
         self.graph, self.learner = graph, learner
-        self.E = env.envs_per_learner
-        self.executor = HierarchicalExecutor(
-            graph, env.batch_size, self.E, learner.gamma, executor_config or ExecutorConfig()
+        rng = BatchRNG(env.seeds, env.envs_per_learner, "explore")
+        self.agent = HierarchicalAgent(
+            graph, learner, exploration, rng, env.envs_per_learner, executor_config
         )
-        rng = BatchRNG(env.seeds, self.E, "explore")
-        make = getattr(learner, "make_policy", None)
-        self.policy = make(exploration, rng) if make else ValuePolicy(learner, exploration, rng)
-        self.rows = env.learner_of_row()
         self.obs_keys = list(_fields(env).keys())
         self.in_keys = [STEP_KEYS.get(k, k) for k in self.obs_keys]
         self.out_keys = ["action"]
-        self.step = 0  # env steps per learner
         self.on_batch = on_batch
         self._started = False
+
+    @property
+    def step(self) -> int:
+        """Env steps per learner so far."""
+        return self.agent.clock
+
+    @property
+    def executor(self):
+        """The Task-Stack executor of the rows."""
+        return self.agent.executor
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Observe the step that led here, learn from it, and choose the next actions."""
@@ -176,18 +181,14 @@ class HierarchicalPolicy(TensorDictModuleBase):
             {k: tensordict.get(STEP_KEYS.get(k, k)) for k in self.obs_keys},
             batch_size=tensordict.batch_size,
         )
-        ctx = self.graph.context(obs, self.rows, self.executor.memory)
-        self.learner.evaluate(ctx)
         if self._started:
-            batch = self.executor.observe(obs, ctx)
-            self.learner.update(batch, ctx, self.step)
+            action = self.agent.step(obs)
             if self.on_batch is not None:
-                self.on_batch(batch, ctx)
-            self.step += self.E
+                self.on_batch(self.agent.batch, self.agent.ctx)
         else:
-            self.executor.reset()
+            action = self.agent.start(obs)
             self._started = True
-        tensordict.set("action", self.executor.act(ctx, self.policy, self.step))
+        tensordict.set("action", action)
         return tensordict
 
 

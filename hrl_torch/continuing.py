@@ -30,9 +30,6 @@ from dataclasses import dataclass, field
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.exploration import Greedy
-from hrl_torch.learners.base import ValuePolicy
 from hrl_torch.rng import BatchRNG
 
 Metric = Callable[[TensorDict], torch.Tensor]
@@ -72,30 +69,21 @@ class ThroughputEvaluator:
     @torch.no_grad()
     def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
         """Greedy throughput and reward rate per learner ``([P], [P])`` on ``trainer.eval_env``."""
-        env, graph, learner = trainer.eval_env, trainer.graph, trainer.learner
+        env = trainer.eval_env
         if env is None:
             raise ValueError("a throughput evaluation needs an eval env (eval_episodes > 0)")
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
-        executor = HierarchicalExecutor(
-            graph, env.batch_size, env.envs_per_learner, learner.gamma, trainer.executor_config
+        agent = trainer.evaluation_agent(
+            env, BatchRNG(env.seeds, env.envs_per_learner, "eval-explore")
         )
-        policy = ValuePolicy(
-            learner, Greedy(), BatchRNG(env.seeds, env.envs_per_learner, "eval-explore")
-        )
-        rows = env.learner_of_row()
-        ctx = graph.context(env.reset(), rows, executor.memory)
-        learner.evaluate(ctx)
-        action = executor.act(ctx, policy, trainer.step)
+        action = agent.start(env.reset())
         sums = torch.zeros(3, env.batch_size)  # amount, reward, time
         for k in range(self.burn_in + self.horizon):
             td = env.step(action)
             if k >= self.burn_in:
                 sums += torch.stack([self.metric(td), td["reward"], td["duration"]]).cpu()
-            ctx = graph.context(td, rows, executor.memory)
-            learner.evaluate(ctx)
-            executor.observe(td, ctx)
-            action = executor.act(ctx, policy, trainer.step)
+            action = agent.step(td)
         per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1)
         throughput, rate = _rates(per_learner, self.scale)
         self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}

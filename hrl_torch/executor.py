@@ -7,10 +7,12 @@ every level that ended (a terminating subtask aborts everything it called) and e
 finished SMDP transitions as a TensorDict. ``act`` pushes children until a primitive is on top
 and returns the primitive actions. The executor never updates values.
 
-Transition fields (batch ``[B]``; per-level fields ``[B, D]``, level ``j`` is the subtask whose
-child ended):
+Transitions are a TensorDict ``[B]`` with ``learner [B]`` (learner of the row) and two nested
+TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
 
-- ``valid``: a transition was emitted at this level; ``learner``: learner of the row ``[B]``;
+``batch[LEVEL]`` ``[B, D]``, level ``j`` is the subtask whose child ended:
+
+- ``valid``: a transition was emitted at this level;
 - ``inst``, ``node``, ``child`` (slot in the node's children), ``child_inst``, ``parent_inst``;
 - ``state`` / ``next_state``: abstract state of ``node`` when the child started / at ``s'``;
 - ``steps`` (primitive steps ``N``), ``duration`` (time ``tau``), ``reward`` (external, summed),
@@ -23,10 +25,11 @@ child ended):
   ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
   where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
 - with feature nodes (``Subtask.features``): ``features`` / ``next_features``
-  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``;
-- primitive fields ``[B]``: ``prim_valid``, ``prim_inst``, ``prim_node``, ``prim_state``,
-  ``prim_reward``, ``prim_duration``, ``prim_greedy``, ``prim_action`` (the env action,
-  ``[B, action_dim]`` in continuous action spaces).
+  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``.
+
+``batch[PRIMITIVE]`` ``[B]``, the primitive step just taken: ``valid``, ``inst``, ``node``,
+``state``, ``reward``, ``duration``, ``greedy`` (its parent and all ancestors chose greedily),
+``action`` (the env action, ``[B, action_dim]`` in continuous action spaces).
 """
 
 from __future__ import annotations
@@ -39,6 +42,12 @@ from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.ops import discount, lookup
+from hrl_torch.stack import TaskStack
+
+#: key of the per-level transitions ``[B, D]`` in a transition batch
+LEVEL = "level"
+#: key of the primitive step ``[B]`` in a transition batch
+PRIMITIVE = "primitive"
 
 
 class SubtaskTimeoutError(RuntimeError):
@@ -108,8 +117,9 @@ def _scatter_at(x: torch.Tensor, slot: torch.Tensor, value) -> None:
 class HierarchicalExecutor:
     """Task-Stacks for ``B`` env rows over one task graph.
 
-    Per-level tensors are ``[B, D + 1]``: levels ``0..D-1`` and a trash column ``D`` that masked
-    writes are aimed at, so a push writes each field with one ``scatter_`` and no gather/where.
+    The stacks are one ``TaskStack`` (``self.stack``) with ``D + 1`` columns: levels
+    ``0..D-1`` and a trash column ``D`` that masked writes are aimed at, so a push writes each
+    field with one ``scatter_`` and no gather/where.
 
     Args:
         graph: the task graph.
@@ -118,28 +128,6 @@ class HierarchicalExecutor:
         gamma: discount used for ``discounted_reward`` / ``internal_reward``.
         config: guard and all-states options.
     """
-
-    _state_keys = (
-        "stack",
-        "top",
-        "child",
-        "start_state",
-        "steps",
-        "time",
-        "reward",
-        "disc_reward",
-        "internal",
-        "greedy",
-        "own_greedy",
-        "inv_steps",
-        "done",
-        "vis_state",
-        "vis_steps",
-        "vis_time",
-        "start_features",
-        "cont_action",
-        "memory",
-    )
 
     def __init__(
         self,
@@ -157,47 +145,25 @@ class HierarchicalExecutor:
         self.n_learners = batch_size // envs_per_learner
         device = graph.node_children.device
         self.device = device
-        b, d, n_vis = batch_size, graph.max_levels, max(self.config.record_visited, 1)
-        w = d + 1  # + trash column
-        self.depth = d
+        self.depth = graph.max_levels
         long = dict(dtype=torch.long, device=device)
-        flt = dict(dtype=torch.float32, device=device)
-        self.levels = torch.arange(w, **long)
-        self.learner = torch.arange(b, **long) // envs_per_learner
-        self.rows = torch.arange(b, **long)
-        self.stack = torch.full((b, w), -1, **long)
-        self.top = torch.full((b,), -1, **long)
-        self.child = torch.zeros(b, w, **long)
-        self.start_state = torch.zeros(b, w, **long)
-        self.steps = torch.zeros(b, w, **long)
-        self.time = torch.zeros(b, w, **flt)
-        self.reward = torch.zeros(b, w, **flt)
-        self.disc_reward = torch.zeros(b, w, **flt)
-        self.internal = torch.zeros(b, w, **flt)
-        self.greedy = torch.ones(b, w, dtype=torch.bool, device=device)  # with all ancestors
-        self.own_greedy = torch.ones(b, w, dtype=torch.bool, device=device)  # this level only
-        self.inv_steps = torch.zeros(b, w, **long)
-        self.done = torch.zeros(b, dtype=torch.bool, device=device)
-        self.vis_state = torch.zeros(b, w, n_vis, **long)
-        self.vis_steps = torch.zeros(b, w, n_vis, **long)
-        self.vis_time = torch.zeros(b, w, n_vis, **flt)
-        # continuous state features where each level's current child started (PG nodes)
-        self.start_features = torch.zeros(b, w, max(graph.max_features, 1), **flt)
-        # the action vector of the continuous primitive on top (continuous action spaces)
-        self.cont_action = torch.zeros(b, max(graph.action_dim, 1), **flt)
-        # what the running invocation of each node remembered when it started (memory nodes);
-        # pass it to graph.context so their termination and features see it
-        self.memory = torch.zeros(b, graph.n_nodes, max(graph.max_memory, 1), **flt)
-        self._visit_slots = torch.arange(n_vis, **long)
+        self.levels = torch.arange(self.depth + 1, **long)
+        self.learner = torch.arange(batch_size, **long) // envs_per_learner
+        self.rows = torch.arange(batch_size, **long)
+        self.stack = TaskStack.empty(graph, batch_size, max(self.config.record_visited, 1))
+        self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
         self._obs = None
-        self._action = torch.zeros(b, **long)
+        self._action = torch.zeros(batch_size, **long)
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
+
+    @property
+    def memory(self) -> torch.Tensor:
+        """What each node's running invocation remembered ``[B, n_nodes, M]`` (for contexts)."""
+        return self.stack.memory
 
     def reset(self) -> None:
         """Empty every stack (all rows start at the root on the next ``act``)."""
-        self.top.fill_(-1)
-        self.stack.fill_(-1)
-        self.done.zero_()
+        self.stack.clear()
 
     # ------------------------------------------------------------------ acting
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
@@ -205,20 +171,12 @@ class HierarchicalExecutor:
 
         Rows whose stack is empty and whose episode is not over start at the root.
         """
-        g, trash = self.graph, self.depth
+        g, s = self.graph, self.stack
         fresh_memory = g.remember_all(ctx.obs)
-        fresh = (self.top < 0) & ~self.done
-        slot = torch.where(fresh, 0, trash)[:, None]
-        _scatter_at(self.stack, slot, 0)
-        _scatter_at(self.inv_steps, slot, 0)
-        self.top = torch.where(fresh, 0, self.top)
-        if fresh_memory is not None:
-            self.memory[:, g.root] = torch.where(
-                fresh[:, None], fresh_memory[:, g.root], self.memory[:, g.root]
-            )
-        self.stats.count_calls(self.learner, g.root, fresh)
-        inst = _at(self.stack, self.top).clamp_min(0)
-        need = (self.top >= 0) & ~self.done & ~lookup(g.inst_is_primitive, inst)
+        fresh = (s.top < 0) & ~s.done
+        self._start_root(fresh, fresh_memory)
+        inst = _at(s.inst, s.top).clamp_min(0)
+        need = (s.top >= 0) & ~s.done & ~lookup(g.inst_is_primitive, inst)
         policy.new_step()
         push = 0
         while bool(need.any()):
@@ -226,61 +184,74 @@ class HierarchicalExecutor:
             available = ctx.available.gather(
                 1, node.view(-1, 1, 1).expand(-1, 1, ctx.available.shape[2])
             ).squeeze(1)
-            if bool((need & ~available.any(-1)).any()):
-                row = int((need & ~available.any(-1)).nonzero()[0])
-                raise GraphError(
-                    f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
-                    f"(every child is terminated, not initiable or masked)"
-                )
+            _check_available(g, need, available, node)
             choice, greedy, *action = policy.select(inst, ctx, available, step, push)
             push += 1
-            # level `top` records its new child, where it starts, and fresh accumulators
-            slot = torch.where(need, self.top, trash)[:, None]
-            parent_greedy = _at(self.greedy, self.top - 1) | (self.top == 0)
-            _scatter_at(self.child, slot, choice)
-            _scatter_at(self.start_state, slot, ctx.abstract.gather(1, node[:, None]))
-            _scatter_at(self.greedy, slot, greedy & parent_greedy)
-            _scatter_at(self.own_greedy, slot, greedy)
-            for acc in (self.steps, self.time, self.reward, self.disc_reward, self.internal):
-                _scatter_at(acc, slot, 0)
-            if ctx.features is not None:
-                _scatter_at(self.start_features, slot, _at(ctx.features, node))
-            if self.config.record_visited:
-                _scatter_at(self.vis_state[:, :, 0], slot, _at(self.start_state, self.top))
-                _scatter_at(self.vis_steps[:, :, 0], slot, 0)
-                _scatter_at(self.vis_time[:, :, 0], slot, 0.0)
-            # push the child one level up
-            child_inst = lookup(g.inst_children.view(-1), inst * g.max_children + choice)
-            child_inst = child_inst.clamp_min(0)  # rows that push nothing may read padding
-            child_node = lookup(g.inst_node, child_inst)
-            child_is_prim = lookup(g.node_is_primitive, child_node)
-            self.top = self.top + need.long()
-            slot = torch.where(need, self.top, trash)[:, None]
-            _scatter_at(self.stack, slot, child_inst)
-            _scatter_at(self.inv_steps, slot, 0)
-            prim_slot = torch.where(need & child_is_prim, self.top, trash)[:, None]
-            _scatter_at(self.start_state, prim_slot, ctx.abstract.gather(1, child_node[:, None]))
-            if g.action_dim:
-                if not action or action[0] is None:
-                    raise GraphError("a continuous primitive was chosen without an action value")
-                pushed = (need & child_is_prim)[:, None]
-                self.cont_action = torch.where(pushed, action[0], self.cont_action)
-            if fresh_memory is not None:
-                self.memory[self.rows, child_node] = torch.where(
-                    need[:, None],
-                    fresh_memory[self.rows, child_node],
-                    self.memory[self.rows, child_node],
-                )
-            self.stats.count_calls(self.learner, child_node, need)
-            inst = torch.where(need, child_inst, inst)
-            need = need & ~child_is_prim
-        live = self.top >= 0
+            self._record_choice(need, node, choice, greedy, ctx)
+            inst, need = self._push_child(need, inst, choice, action, ctx, fresh_memory)
+        live = s.top >= 0
         if g.action_dim:
-            self._action = torch.where(live[:, None], self.cont_action, 0.0)
+            self._action = torch.where(live[:, None], s.cont_action, 0.0)
         else:
             self._action = torch.where(live, lookup(g.node_action, lookup(g.inst_node, inst)), 0)
         self._obs = ctx.obs
         return self._action
+
+    def _start_root(self, fresh: torch.Tensor, fresh_memory: torch.Tensor | None) -> None:
+        """Put the root on the empty stacks of the rows ``fresh [B]``."""
+        g, s, trash = self.graph, self.stack, self.depth
+        slot = torch.where(fresh, 0, trash)[:, None]
+        _scatter_at(s.inst, slot, 0)
+        _scatter_at(s.inv_steps, slot, 0)
+        s.top = torch.where(fresh, 0, s.top)
+        if fresh_memory is not None:
+            s.memory[:, g.root] = torch.where(
+                fresh[:, None], fresh_memory[:, g.root], s.memory[:, g.root]
+            )
+        self.stats.count_calls(self.learner, g.root, fresh)
+
+    def _record_choice(self, need, node, choice, greedy, ctx: StepContext) -> None:
+        """Level ``top`` of the rows ``need`` records its new child and fresh accumulators."""
+        s, trash = self.stack, self.depth
+        slot = torch.where(need, s.top, trash)[:, None]
+        parent_greedy = _at(s.greedy, s.top - 1) | (s.top == 0)
+        _scatter_at(s.child, slot, choice)
+        _scatter_at(s.start_state, slot, ctx.abstract.gather(1, node[:, None]))
+        _scatter_at(s.greedy, slot, greedy & parent_greedy)
+        _scatter_at(s.own_greedy, slot, greedy)
+        for acc in (s.steps, s.time, s.reward, s.disc_reward, s.internal):
+            _scatter_at(acc, slot, 0)
+        if ctx.features is not None:
+            _scatter_at(s.start_features, slot, _at(ctx.features, node))
+        if self.config.record_visited:
+            _scatter_at(s.vis_state[:, :, 0], slot, _at(s.start_state, s.top))
+            _scatter_at(s.vis_steps[:, :, 0], slot, 0)
+            _scatter_at(s.vis_time[:, :, 0], slot, 0.0)
+
+    def _push_child(self, need, inst, choice, action, ctx: StepContext, fresh_memory):
+        """Push the chosen children one level up; returns the new tops and who still needs one."""
+        g, s, trash = self.graph, self.stack, self.depth
+        child_inst = lookup(g.inst_children.view(-1), inst * g.max_children + choice)
+        child_inst = child_inst.clamp_min(0)  # rows that push nothing may read padding
+        child_node = lookup(g.inst_node, child_inst)
+        child_is_prim = lookup(g.node_is_primitive, child_node)
+        s.top = s.top + need.long()
+        slot = torch.where(need, s.top, trash)[:, None]
+        _scatter_at(s.inst, slot, child_inst)
+        _scatter_at(s.inv_steps, slot, 0)
+        prim_slot = torch.where(need & child_is_prim, s.top, trash)[:, None]
+        _scatter_at(s.start_state, prim_slot, ctx.abstract.gather(1, child_node[:, None]))
+        if g.action_dim:
+            if not action or action[0] is None:
+                raise GraphError("a continuous primitive was chosen without an action value")
+            pushed = (need & child_is_prim)[:, None]
+            s.cont_action = torch.where(pushed, action[0], s.cont_action)
+        if fresh_memory is not None:
+            s.memory[self.rows, child_node] = torch.where(
+                need[:, None], fresh_memory[self.rows, child_node], s.memory[self.rows, child_node]
+            )
+        self.stats.count_calls(self.learner, child_node, need)
+        return torch.where(need, child_inst, inst), need & ~child_is_prim
 
     # ------------------------------------------------------------------ observing
     def observe(
@@ -290,51 +261,25 @@ class HierarchicalExecutor:
 
         With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
         """
-        g, cfg = self.graph, self.config
+        g, s = self.graph, self.stack
         reward = step_td["reward"]
         if bool(torch.isnan(reward).any()):
             row = int(torch.isnan(reward).nonzero()[0])
             raise ValueError(f"the env returned a NaN reward (env row {row})")
-        tau = step_td["duration"]
         real = ~step_td["is_init"]
         env_term = step_td["terminated"] & real
         env_trunc = step_td["truncated"] & real & ~env_term
-        levels = self.levels[None, :]
-        active = (levels <= self.top[:, None]) & real[:, None]
-        node = lookup(g.inst_node, self.stack.clamp_min(0))
+        active = (self.levels[None, :] <= s.top[:, None]) & real[:, None]
+        node = lookup(g.inst_node, s.inst.clamp_min(0))
         is_prim = lookup(g.node_is_primitive, node) & active
-
-        # accumulate reward and time of the current child at every level
-        self.reward += active * reward[:, None]
-        if self.gamma == 1.0:
-            self.disc_reward += active * reward[:, None]
-        else:
-            disc = discount(self.gamma, self.time)
-            self.disc_reward += active * disc * reward[:, None]
-        if g.shaping_nodes and self._obs is not None:
-            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, self.memory)
-            shaping = shaping.gather(1, node)
-            self.internal += active * discount(self.gamma, self.time) * shaping
-        self.steps += active
-        self.time += active * tau[:, None]
-        self.inv_steps += active
+        self._accumulate(active, node, reward, step_td["duration"], ctx)
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
         ended_own = own | is_prim | (active & env_term[:, None])
-        # the guard spares the root: a continuing root never terminates by design
-        timeout = active & ~is_prim & (levels > 0) & (self.inv_steps >= cfg.max_subtask_steps)
-        if bool(timeout.any()):
-            row, lvl = (int(v) for v in timeout.nonzero()[0])
-            name = g.names[int(node[row, lvl])]
-            if cfg.on_timeout == "raise":
-                path = g.instance_path(int(self.stack[row, lvl]))
-                raise SubtaskTimeoutError(
-                    f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
-                    f"terminating (env row {row}, instance {path})"
-                )
+        timeout = self._timeouts(active, is_prim, node)
         cut = ended_own | timeout | (active & env_trunc[:, None])
-        popped = (cut.cumsum(1) > 0) & active
+        popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
         child_popped = _shift_left(popped)
         emit = active & ~is_prim & child_popped
         child_done = _shift_left(ended_own)
@@ -345,15 +290,47 @@ class HierarchicalExecutor:
             batch = self._transitions(
                 step_td, ctx, node, emit, child_done, terminal, env_trunc, real
             )
-        if cfg.record_visited:
+        if self.config.record_visited:
             self._record_visits(active & ~is_prim & ~child_popped, ctx, node)
 
         # statistics, then pop
-        self.stats.count_ends(self.learner, node, popped, ended_own & popped, self.inv_steps)
-        self.stack = torch.where(popped, -1, self.stack)
-        self.top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
-        self.done = env_term | env_trunc
+        self.stats.count_ends(self.learner, node, popped, ended_own & popped, s.inv_steps)
+        s.inst = torch.where(popped, -1, s.inst)
+        s.top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
+        s.done = env_term | env_trunc
         return batch
+
+    def _accumulate(self, active, node, reward, tau, ctx: StepContext) -> None:
+        """Add the step's reward and time to the current child of every active level."""
+        g, s = self.graph, self.stack
+        s.reward += active * reward[:, None]
+        if self.gamma == 1.0:
+            s.disc_reward += active * reward[:, None]
+        else:
+            s.disc_reward += active * discount(self.gamma, s.time) * reward[:, None]
+        if g.shaping_nodes and self._obs is not None:
+            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, s.memory)
+            s.internal += active * discount(self.gamma, s.time) * shaping.gather(1, node)
+        s.steps += active
+        s.time += active * tau[:, None]
+        s.inv_steps += active
+
+    def _timeouts(self, active, is_prim, node) -> torch.Tensor:
+        """Levels ``[B, W]`` past the guard (raises with ``on_timeout="raise"``).
+
+        The guard spares the root: a continuing root never terminates by design.
+        """
+        cfg, s = self.config, self.stack
+        timeout = active & ~is_prim & (self.levels > 0) & (s.inv_steps >= cfg.max_subtask_steps)
+        if cfg.on_timeout == "raise" and bool(timeout.any()):
+            row, lvl = (int(v) for v in timeout.nonzero()[0])
+            name = self.graph.names[int(node[row, lvl])]
+            path = self.graph.instance_path(int(s.inst[row, lvl]))
+            raise SubtaskTimeoutError(
+                f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
+                f"terminating (env row {row}, instance {path})"
+            )
+        return timeout
 
     def _record_visits(
         self, continuing: torch.Tensor, ctx: StepContext, node: torch.Tensor
@@ -363,94 +340,101 @@ class HierarchicalExecutor:
         ``s'`` is abstracted for each level's node; visit ``k`` of a child lives in slot
         ``k % L``.
         """
-        size = self.config.record_visited
-        slot = (self.steps % size).unsqueeze(-1)  # steps already counts this step: visit index
+        s, size = self.stack, self.config.record_visited
+        slot = (s.steps % size).unsqueeze(-1)  # steps already counts this step: visit index
         state = ctx.abstract.gather(1, node)
-        for buf, value in (
-            (self.vis_state, state),
-            (self.vis_steps, self.steps),
-            (self.vis_time, self.time),
-        ):
+        for buf, value in ((s.vis_state, state), (s.vis_steps, s.steps), (s.vis_time, s.time)):
             old = buf.gather(2, slot).squeeze(-1)
             buf.scatter_(2, slot, torch.where(continuing, value.to(buf.dtype), old).unsqueeze(-1))
 
     def _transitions(self, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
-        g = self.graph
-        d = self.depth
-        stack = self.stack[:, :d]
-        node = node[:, :d]
-        terminal = terminal[:, :d]
-        emit = emit[:, :d]
-        child_inst = _shift_left(self.stack, fill=-1)[:, :d]
-        parent_inst = _shift_right(self.stack, fill=-1)[:, :d]
+        g, s, d = self.graph, self.stack, self.depth
+        node, terminal, emit = node[:, :d], terminal[:, :d], emit[:, :d]
         if g.internal_nodes:
-            pseudo = g.internal_rewards_at_termination(ctx.obs, self.memory).gather(1, node)
+            pseudo = g.internal_rewards_at_termination(ctx.obs, s.memory).gather(1, node)
             pseudo = pseudo * terminal
         else:
             pseudo = torch.zeros(node.shape, device=self.device)
-        top = self.top
-        prim_inst = _at(self.stack, top)
-        fields = {
+        level = {
             "valid": emit,
-            "learner": self.learner,
-            "inst": stack.clone(),
+            "inst": s.inst[:, :d].clone(),
             "node": node,
-            "child": self.child[:, :d].clone(),
-            "child_inst": child_inst,
-            "parent_inst": parent_inst,
-            "state": self.start_state[:, :d].clone(),
+            "child": s.child[:, :d].clone(),
+            "child_inst": _shift_left(s.inst, fill=-1)[:, :d],
+            "parent_inst": _shift_right(s.inst, fill=-1)[:, :d],
+            "state": s.start_state[:, :d].clone(),
             "next_state": ctx.abstract.gather(1, node),
-            "steps": self.steps[:, :d].clone(),
-            "duration": self.time[:, :d].clone(),
-            "reward": self.reward[:, :d].clone(),
-            "discounted_reward": self.disc_reward[:, :d].clone(),
-            "internal_reward": self.internal[:, :d].clone(),
+            "steps": s.steps[:, :d].clone(),
+            "duration": s.time[:, :d].clone(),
+            "reward": s.reward[:, :d].clone(),
+            "discounted_reward": s.disc_reward[:, :d].clone(),
+            "internal_reward": s.internal[:, :d].clone(),
             "pseudo_reward": pseudo,
             "terminal": terminal,
             "child_done": child_done[:, :d] & emit,
             "truncated": env_trunc[:, None] & emit & ~terminal,
-            "greedy": self.greedy[:, :d].clone(),
-            "own_greedy": self.own_greedy[:, :d].clone(),
-            "prim_valid": real & (top >= 0),
-            "prim_inst": prim_inst,
-            "prim_node": lookup(g.inst_node, prim_inst.clamp_min(0)),
-            "prim_state": _at(self.start_state, top),
-            "prim_reward": step_td["reward"],
-            "prim_duration": step_td["duration"],
-            "prim_greedy": _at(self.greedy, top - 1),
-            "prim_action": self._action.clone(),
+            "greedy": s.greedy[:, :d].clone(),
+            "own_greedy": s.own_greedy[:, :d].clone(),
         }
         if ctx.features is not None:
-            fields["features"] = self.start_features[:, :d].clone()
-            fields["next_features"] = _gather_levels(ctx.features, node)
+            level["features"] = s.start_features[:, :d].clone()
+            level["next_features"] = _gather_levels(ctx.features, node)
         if self.config.record_visited:
-            fields.update(
-                visited_state=self.vis_state[:, :d].clone(),
-                visited_steps=self.vis_steps[:, :d].clone(),
-                visited_time=self.vis_time[:, :d].clone(),
+            level.update(
+                visited_state=s.vis_state[:, :d].clone(),
+                visited_steps=s.vis_steps[:, :d].clone(),
+                visited_time=s.vis_time[:, :d].clone(),
                 visited_valid=self._visit_slots[None, None, :]
-                < self.steps[:, :d].clamp_max(self.config.record_visited)[:, :, None],
+                < s.steps[:, :d].clamp_max(self.config.record_visited)[:, :, None],
             )
-        return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
+        prim_inst = _at(s.inst, s.top)
+        primitive = {
+            "valid": real & (s.top >= 0),
+            "inst": prim_inst,
+            "node": lookup(g.inst_node, prim_inst.clamp_min(0)),
+            "state": _at(s.start_state, s.top),
+            "reward": step_td["reward"],
+            "duration": step_td["duration"],
+            "greedy": _at(s.greedy, s.top - 1),
+            "action": self._action.clone(),
+        }
+        b, dev = self.batch_size, self.device
+        return TensorDict(
+            {
+                "learner": self.learner,
+                LEVEL: TensorDict(level, batch_size=[b, d], device=dev),
+                PRIMITIVE: TensorDict(primitive, batch_size=[b], device=dev),
+            },
+            batch_size=[b],
+            device=dev,
+        )
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        """Stacks, accumulators and the last action and observation, for exact resume."""
-        state = {k: getattr(self, k).clone() for k in self._state_keys}
-        state["action"] = self._action.clone()
-        state["obs"] = {} if self._obs is None else self._obs.to_dict()
-        return state
+        """The Task-Stacks and the last action and observation, for exact resume."""
+        return {
+            "stack": self.stack.state_dict(),
+            "action": self._action.clone(),
+            "obs": {} if self._obs is None else self._obs.to_dict(),
+        }
 
-    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+    def load_state_dict(self, state: dict) -> None:
         """Restore a ``state_dict`` taken from an executor of the same shape."""
-        for k in self._state_keys:
-            if state[k].shape != getattr(self, k).shape:
-                raise ValueError(f"executor state {k!r} has shape {tuple(state[k].shape)}")
-        for k in self._state_keys:
-            setattr(self, k, state[k].to(self.device).clone())
+        self.stack.load_state_dict(state["stack"])
         self._action = state["action"].to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _check_available(g: TaskGraph, need, available, node) -> None:
+    """A subtask that must choose but has no available child is a graph error."""
+    stuck = need & ~available.any(-1)
+    if bool(stuck.any()):
+        row = int(stuck.nonzero()[0])
+        raise GraphError(
+            f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
+            f"(every child is terminated, not initiable or masked)"
+        )
 
 
 def _shift_left(x: torch.Tensor, fill=False) -> torch.Tensor:

@@ -15,11 +15,12 @@ from dataclasses import asdict, dataclass, field
 import torch
 from tqdm import tqdm
 
+from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor
+from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration, Greedy
 from hrl_torch.graph import TaskGraph
-from hrl_torch.learners.base import Learner, ValuePolicy
+from hrl_torch.learners.base import Learner
 from hrl_torch.rng import BatchRNG
 from hrl_torch.runlog import RunLogger
 
@@ -112,14 +113,16 @@ class Trainer:
         if learner.n_learners != env.n_learners:
             raise ValueError(f"learner has P={learner.n_learners} but env has {env.n_learners}")
         self.P, self.E = env.n_learners, env.envs_per_learner
-        self.executor = HierarchicalExecutor(
-            graph, env.batch_size, self.E, learner.gamma, self.executor_config
+        self.agent = HierarchicalAgent(
+            graph,
+            learner,
+            exploration,
+            BatchRNG(env.seeds, self.E, "explore"),
+            self.E,
+            self.executor_config,
         )
         self.rows = env.learner_of_row()
-        self.policy = self._make_policy(exploration, BatchRNG(env.seeds, self.E, "explore"))
-        self.step = 0  # env steps per learner
         self.action: torch.Tensor | None = None
-        self.ctx = None
         self.train_seconds = 0.0
         self._episodes = _EpisodeTracker(env.batch_size, self.P, self.E, self.config.success_key)
         self.curve: list[tuple[int, list[float]]] = []
@@ -128,43 +131,36 @@ class Trainer:
         self.real_steps = torch.zeros(self.P, dtype=torch.float64)
         self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
 
-    # --- hook (policy-gradient and hybrid learners): a learner may supply its own policy ---
-    def _make_policy(self, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
-        """``learner.make_policy(exploration, rng, evaluate)`` if it has one, else ValuePolicy.
-
-        ``evaluate`` asks for the evaluation policy (PG nodes act on their modes).
-        """
-        make = getattr(self.learner, "make_policy", None)
-        if make is not None:
-            return make(exploration, rng, evaluate=evaluate)
-        return ValuePolicy(self.learner, exploration, rng)
-
-    # --- end of hook ---
-
     # ------------------------------------------------------------------ stepping
-    def _begin(self) -> None:
-        obs = self.env.reset()
-        self.executor.reset()
-        self.ctx = self.graph.context(obs, self.rows, self.executor.memory)
-        self.learner.evaluate(self.ctx)
-        self.action = self.executor.act(self.ctx, self.policy, self.step)
+    @property
+    def step(self) -> int:
+        """Env steps per learner so far (the clock of the schedules)."""
+        return self.agent.clock
+
+    @step.setter
+    def step(self, value: int) -> None:
+        self.agent.clock = value
+
+    @property
+    def executor(self):
+        """The training rows' Task-Stack executor."""
+        return self.agent.executor
+
+    @property
+    def policy(self):
+        """The training policy."""
+        return self.agent.policy
 
     def train_step(self) -> None:
         """One batched step: every row takes one primitive action, the learner updates."""
         if self.action is None:
-            self._begin()
+            self.action = self.agent.start(self.env.reset())
         td = self.env.step(self.action)
-        ctx = self.graph.context(td, self.rows, self.executor.memory)
-        self.learner.evaluate(ctx)
-        batch = self.executor.observe(td, ctx)
-        self.learner.update(batch, ctx, self.step)
+        self.action = self.agent.step(td)
         self._episodes.add(td)
         self.real_steps.index_add_(0, self.rows.cpu(), (~td["is_init"]).cpu().double())
         if self.evaluator is not None:  # continuing tasks: training throughput
             self.evaluator.observe(td, self.rows, self.P)
-        self.step += self.E
-        self.ctx = ctx
-        self.action = self.executor.act(ctx, self.policy, self.step)
 
     def train(self, steps: int | None = None, run_dir=None) -> TrainResult:
         """Train until ``steps`` env steps per learner (default ``config.steps``)."""
@@ -230,20 +226,8 @@ class Trainer:
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
-        self._eval_rng().load_state_dict({"counter": 0})
-        executor = HierarchicalExecutor(
-            self.graph,
-            env.batch_size,
-            env.envs_per_learner,
-            self.learner.gamma,
-            self.executor_config,
-        )
-        policy = self._make_policy(Greedy(), self._eval_rng(), evaluate=True)
-        rows = env.learner_of_row()
-        obs = env.reset()
-        ctx = self.graph.context(obs, rows, executor.memory)
-        self.learner.evaluate(ctx)
-        action = executor.act(ctx, policy, self.step)
+        agent = self.evaluation_agent(env, self._eval_rng())
+        action = agent.start(env.reset())
         ret = torch.zeros(env.batch_size)
         success = torch.zeros(env.batch_size, dtype=torch.bool)
         finished = torch.zeros(env.batch_size, dtype=torch.bool)
@@ -257,13 +241,26 @@ class Trainer:
             finished |= ended
             if bool(finished.all()):
                 break
-            ctx = self.graph.context(td, rows, executor.memory)
-            self.learner.evaluate(ctx)
-            executor.observe(td, ctx, transitions=False)
-            action = executor.act(ctx, policy, self.step)
+            action = agent.step(td)
         n = env.envs_per_learner
         self.last_eval_steps = length.view(-1, n).mean(1)
         return ret.view(-1, n).mean(1), success.float().view(-1, n).mean(1)
+
+    def evaluation_agent(self, env, rng: BatchRNG, transitions: bool = False) -> HierarchicalAgent:
+        """A greedy, non-learning agent over ``env``'s rows at the current step (evaluation)."""
+        agent = HierarchicalAgent(
+            self.graph,
+            self.learner,
+            Greedy(),
+            rng,
+            env.envs_per_learner,
+            self.executor_config,
+            learn=False,
+            evaluate=True,
+            transitions=transitions,
+        )
+        agent.clock = self.step
+        return agent
 
     def _eval_rng(self) -> BatchRNG:
         if not hasattr(self, "_eval_rng_state"):
@@ -361,8 +358,6 @@ class Trainer:
         self.first_hit = [None if h < 0 else int(h) for h in state["first_hit"]]
         self.real_steps = state["real_steps"].clone()
         self._next = {k: int(v) for k, v in state["next"].items()}
-        if self.action is not None:
-            self.ctx = None  # recomputed lazily: act() already ran before the save
 
     def save(self, path) -> None:
         """Write a checkpoint of this trainer."""

@@ -39,8 +39,9 @@ from agents.ship import (
     ship_hierarchy,
 )
 from envs.ship import FIGURE_5_12_STARTS, ShipSteeringEnv
+from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.collector import HierarchicalPolicy, collect
-from hrl_torch.executor import HierarchicalExecutor
+from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Greedy
 from hrl_torch.rng import BatchRNG
 
@@ -186,20 +187,26 @@ def greedy_paths(learner, graph, starts: torch.Tensor, max_steps: int = 1000):
     p, n = learner.n_learners, len(starts)
     env = ShipSteeringEnv(list(range(p)), n, max_episode_steps=max_steps)
     obs = env.reset_to(starts.repeat(p, 1))
-    executor = HierarchicalExecutor(graph, env.batch_size, n, 1.0, DOMAIN.algos["hybrid"].executor)
-    policy = learner.make_policy(Greedy(), BatchRNG(env.seeds, n, "figure"), evaluate=True)
-    rows = env.learner_of_row()
+    agent = HierarchicalAgent(
+        graph,
+        learner,
+        Greedy(),
+        BatchRNG(env.seeds, n, "figure"),
+        n,
+        DOMAIN.algos["hybrid"].executor,
+        learn=False,
+        evaluate=True,
+        transitions=True,
+    )
     direction_of = {graph.index[name]: k for k, name in enumerate(DIRECTION_NODES)}
     positions = [obs["observation"][:, :2].clone()]
     calls = [[] for _ in range(env.batch_size)]
     live = torch.ones(env.batch_size, dtype=torch.bool)
     success = torch.zeros(env.batch_size, dtype=torch.bool)
-    ctx = graph.context(obs, rows, executor.memory)
-    learner.evaluate(ctx)
-    action = executor.act(ctx, policy, 0)
+    action = agent.start(obs)
     new_call = live.clone()
     for _ in range(max_steps):
-        node = graph.inst_node[executor.stack[:, 1].clamp_min(0)]
+        node = graph.inst_node[agent.executor.stack.inst[:, 1].clamp_min(0)]
         for b in new_call.nonzero().flatten().tolist():
             x, y = positions[-1][b].tolist()
             calls[b].append((x, y, direction_of[int(node[b])]))
@@ -209,11 +216,8 @@ def greedy_paths(learner, graph, starts: torch.Tensor, max_steps: int = 1000):
         live &= ~(td["terminated"] | td["truncated"])
         if not bool(live.any()):
             break
-        ctx = graph.context(td, rows, executor.memory)
-        learner.evaluate(ctx)
-        batch = executor.observe(td, ctx)
-        new_call = batch["valid"][:, 0] & live
-        action = executor.act(ctx, policy, 0)
+        action = agent.step(td)
+        new_call = agent.batch[LEVEL]["valid"][:, 0] & live
     return torch.stack(positions), success, calls
 
 

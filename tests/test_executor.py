@@ -27,7 +27,7 @@ def run_checked(graph, env, steps, check_step):
     learner.evaluate(ctx)
     ex.act(ctx, policy, 0)
     for _ in range(steps):
-        before = (ex.stack.clone(), ex.top.clone())
+        before = (ex.stack.inst.clone(), ex.stack.top.clone())
         td = env.step(ex._action)
         ctx = graph.context(td, rows)
         learner.evaluate(ctx)
@@ -42,21 +42,23 @@ def check_invariants(graph):
     def check(phase, ex, ctx, td, batch, before):
         b_idx = torch.arange(ex.batch_size)
         if phase == "act":
-            live = ex.top >= 0
-            assert ((ex.top + 1) <= graph.max_levels).all()
-            top_node = graph.inst_node[ex.stack[b_idx, ex.top.clamp_min(0)]]
+            live = ex.stack.top >= 0
+            assert ((ex.stack.top + 1) <= graph.max_levels).all()
+            top_node = graph.inst_node[ex.stack.inst[b_idx, ex.stack.top.clamp_min(0)]]
             # after pushing, a primitive is on top of every live stack
             assert graph.node_is_primitive[top_node][live].all()
             for b in live.nonzero().squeeze(1).tolist():
-                t = int(ex.top[b])
-                assert int(ex.stack[b, 0]) == 0
+                t = int(ex.stack.top[b])
+                assert int(ex.stack.inst[b, 0]) == 0
                 for k in range(t):
-                    inst = int(ex.stack[b, k])
-                    assert int(ex.stack[b, k + 1]) == int(graph.inst_children[inst, ex.child[b, k]])
+                    inst = int(ex.stack.inst[b, k])
+                    assert int(ex.stack.inst[b, k + 1]) == int(
+                        graph.inst_children[inst, ex.stack.child[b, k]]
+                    )
                     # no live subtask sits in its own terminal set
                     assert not bool(ctx.terminated[b, graph.inst_node[inst]])
             # empty stacks only for rows whose episode just ended
-            assert (live | ex.done).all()
+            assert (live | ex.stack.done).all()
             return
         stack, top = before
         real = ~td["is_init"]
@@ -70,12 +72,14 @@ def check_invariants(graph):
                 ends[:] = True
             first = int(ends.nonzero()[0])
             # termination pops exactly the first terminated level and everything above it
-            assert int(ex.top[b]) == first - 1
-            emitted = batch["valid"][b].nonzero().squeeze(1).tolist()
+            assert int(ex.stack.top[b]) == first - 1
+            emitted = batch["level", "valid"][b].nonzero().squeeze(1).tolist()
             assert emitted == list(range(max(first - 1, 0), t))
             for lvl in emitted:
-                assert bool(batch["terminal"][b, lvl]) == bool(own[lvl])
-                assert bool(batch["child_done"][b, lvl]) == bool(own[lvl + 1] or lvl + 1 == t)
+                assert bool(batch["level", "terminal"][b, lvl]) == bool(own[lvl])
+                assert bool(batch["level", "child_done"][b, lvl]) == bool(
+                    own[lvl + 1] or lvl + 1 == t
+                )
 
     return check
 
@@ -125,8 +129,10 @@ def test_runaway_subtask_raises_or_aborts():
                 learner.evaluate(ctx)
                 batch = ex.observe(td, ctx)
                 # the aborted Loop gives its parent no completed child
-                assert not (batch["valid"][:, 0] & batch["child_done"][:, 0]).any()
-                calls.append(int(ex.top.min()))
+                assert not (
+                    batch["level", "valid"][:, 0] & batch["level", "child_done"][:, 0]
+                ).any()
+                calls.append(int(ex.stack.top.min()))
                 ex.act(ctx, policy, 0)
             assert ex.stats.calls[0, graph.index["Loop"]] >= 4  # restarted after each abort
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
@@ -124,13 +125,15 @@ class HARLearner(ThreePartLearner):
 
     def primitive_target(self, batch) -> torch.Tensor:
         """``r - g t`` (line 5; continuous time: ``k + r tau - g tau``)."""
-        return batch["prim_reward"] - self.gain[batch["learner"]] * self.primitive_time(batch)
+        prim = batch[PRIMITIVE]
+        return prim["reward"] - self.gain[batch["learner"]] * self.primitive_time(batch)
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Lines 5, 17-21 (all with the gain ``g_t``), then the gain (lines 6-7)."""
+        prim = batch[PRIMITIVE]
         super().update(batch, ctx, step)
-        seen = batch["prim_valid"] & batch["prim_greedy"]  # M_i and its ancestors non-random
-        self.gains.add(batch["learner"], 0, batch["prim_reward"], self.primitive_time(batch), seen)
+        seen = prim["valid"] & prim["greedy"]  # M_i and its ancestors non-random
+        self.gains.add(batch["learner"], 0, prim["reward"], self.primitive_time(batch), seen)
 
 
 class RARLearner(TabularLearner):
@@ -195,14 +198,15 @@ class RARLearner(TabularLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Lines 5, 18/20 (with the gains ``g_t``), then the gains (lines 23-24)."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         alpha = self.alpha(step)
         lay = self.layout
-        inst = batch["inst"]
+        inst = level["inst"]
         learner = batch["learner"][:, None].expand_as(inst)
         table = lay.inst_table[inst.clamp_min(0)]
-        child_table = lay.table_children[table, batch["child"]].clamp_min(0)
-        terminal = batch["terminal"]
-        valid = batch["valid"] & (batch["child_done"] | terminal)
+        child_table = lay.table_children[table, level["child"]].clamp_min(0)
+        terminal = level["terminal"]
+        valid = level["valid"] & (level["child_done"] | terminal)
         t = self.time_of(batch)
         gains = self.gain
         g_i = gains[learner, table]
@@ -210,23 +214,23 @@ class RARLearner(TabularLearner):
         h_next = ctx.values["H"].gather(1, table)
         h_next = torch.where(terminal, torch.zeros_like(h_next), h_next)  # dummy state: 0
         target = h_next - (g_i - g_a) * t
-        idx = self.C.index(learner, table, batch["state"], batch["child"])
-        self.record_td(learner, batch["node"], target - self.C.read(idx, valid), valid)
+        idx = self.C.index(learner, table, level["state"], level["child"])
+        self.record_td(learner, level["node"], target - self.C.read(idx, valid), valid)
         self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
-        if self.all_states and "visited_state" in batch.keys():
-            late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
+        if self.all_states and "visited_state" in level.keys():
+            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
             left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             target_k = h_next[..., None] - (g_i - g_a)[..., None] * left
             vidx = self.C.index(
                 learner[..., None],
                 table[..., None],
-                batch["visited_state"],
-                batch["child"][..., None],
+                level["visited_state"],
+                level["child"][..., None],
             )
             self.C.update(vidx.reshape(-1), target_k.reshape(-1), alpha, late.reshape(-1))
-        prim_table = lay.inst_table[batch["prim_inst"].clamp_min(0)]
-        pidx = self.V.index(batch["learner"], prim_table, batch["prim_state"], 0)
-        self.V.update(pidx, batch["prim_reward"], alpha, batch["prim_valid"])  # line 5
+        prim_table = lay.inst_table[prim["inst"].clamp_min(0)]
+        pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
+        self.V.update(pidx, prim["reward"], alpha, prim["valid"])  # line 5
         # lines 23-24: the child's run counts for g_i when it and its ancestors were greedy
-        seen = batch["valid"] & batch["greedy"]
-        self.gains.add(learner, table, batch["reward"], t, seen)
+        seen = level["valid"] & level["greedy"]
+        self.gains.add(learner, table, level["reward"], t, seen)

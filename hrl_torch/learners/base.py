@@ -16,6 +16,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.ops import columns, lookup
@@ -134,13 +135,15 @@ class TabularLearner(Learner):
 
     def time_of(self, batch, steps: str = "steps", duration: str = "duration") -> torch.Tensor:
         """Time of the children of ``batch``: steps ``N`` (discrete) or durations (continuous)."""
-        return batch[duration] if self.continuous else batch[steps].float()
+        level = batch[LEVEL]
+        return level[duration] if self.continuous else level[steps].float()
 
     def primitive_time(self, batch) -> torch.Tensor:
         """Time of the primitive steps of ``batch``: 1 each (discrete) or their durations."""
+        prim = batch[PRIMITIVE]
         if self.continuous:
-            return batch["prim_duration"]
-        return torch.ones_like(batch["prim_reward"])
+            return prim["duration"]
+        return torch.ones_like(prim["reward"])
 
 
 class ValuePolicy:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.three_part import ThreePartLearner
@@ -52,4 +53,5 @@ class HDRLearner(ThreePartLearner):
 
     def primitive_target(self, batch) -> torch.Tensor:
         """The step's reward."""
-        return batch["prim_reward"]
+        prim = batch[PRIMITIVE]
+        return prim["reward"]

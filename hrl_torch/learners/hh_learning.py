@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.average_reward import GainEstimate
 from hrl_torch.learners.base import TabularLearner
@@ -129,32 +130,31 @@ class HHLearner(TabularLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Back up the states every subtask is in, then add the batch to the models and gain."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         lay = self.layout
         self._backup(ctx)
         # the model of every finished child: counts of (s, a) -> s' (or "terminated")
-        inst = batch["inst"]
+        inst = level["inst"]
         table = lay.inst_table[inst.clamp_min(0)]
-        terminal = batch["terminal"]
-        valid = batch["valid"] & (batch["child_done"] | terminal)
+        terminal = level["terminal"]
+        valid = level["valid"] & (level["child_done"] | terminal)
         n_out = self.outcomes[table]
-        outcome = torch.where(terminal, n_out - 1, batch["next_state"])
-        col = batch["child"] * n_out + outcome
-        m_idx = self.model.index(batch["learner"][:, None], table, batch["state"], col)
+        outcome = torch.where(terminal, n_out - 1, level["next_state"])
+        col = level["child"] * n_out + outcome
+        m_idx = self.model.index(batch["learner"][:, None], table, level["state"], col)
         m_idx = torch.where(valid, m_idx, torch.zeros_like(m_idx)).reshape(-1)
         self.model.data.view(-1).index_add_(0, m_idx, valid.reshape(-1).float())
         # primitive rewards and durations
-        prim = lay.inst_table[batch["prim_inst"].clamp_min(0)]
-        p_idx = self.prim_count.index(batch["learner"], prim, batch["prim_state"], 0)
-        seen = batch["prim_valid"]
+        prim_table = lay.inst_table[prim["inst"].clamp_min(0)]
+        p_idx = self.prim_count.index(batch["learner"], prim_table, prim["state"], 0)
+        seen = prim["valid"]
         p_idx = torch.where(seen, p_idx, torch.zeros_like(p_idx))
         m = seen.float()
         self.prim_count.data.view(-1).index_add_(0, p_idx, m)
-        self.prim_reward.data.view(-1).index_add_(0, p_idx, batch["prim_reward"] * m)
-        self.prim_time.data.view(-1).index_add_(0, p_idx, batch["prim_duration"] * m)
-        greedy = seen & batch["prim_greedy"]
-        self.gains.add(
-            batch["learner"], 0, batch["prim_reward"], self.primitive_time(batch), greedy
-        )
+        self.prim_reward.data.view(-1).index_add_(0, p_idx, prim["reward"] * m)
+        self.prim_time.data.view(-1).index_add_(0, p_idx, prim["duration"] * m)
+        greedy = seen & prim["greedy"]
+        self.gains.add(batch["learner"], 0, prim["reward"], self.primitive_time(batch), greedy)
 
     def _backup(self, ctx: StepContext) -> None:
         """``H(i, s) <- max_a [...]`` for every subtask at the states of ``ctx`` (evaluated)."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
@@ -103,49 +104,50 @@ class MaxQLearner(TabularLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Dietterich's MAXQ-Q updates for every finished child and primitive in ``batch``."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         alpha = self.alpha(step)
         lay = self.layout
-        learner = batch["learner"][:, None].expand_as(batch["inst"])
-        table = lookup(lay.inst_table, batch["inst"].clamp_min(0))
-        terminal = batch["terminal"]
-        valid = batch["valid"] & (batch["child_done"] | terminal)
+        learner = batch["learner"][:, None].expand_as(level["inst"])
+        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
+        terminal = level["terminal"]
+        valid = level["valid"] & (level["child_done"] | terminal)
         v_next = ctx.values["V"].gather(1, table)
         v_next_int = ctx.values["V_int"].gather(1, table)
         target, target_int = self.targets(
-            discount(self.gamma, batch["duration"]),
-            batch["internal_reward"],
+            discount(self.gamma, level["duration"]),
+            level["internal_reward"],
             terminal,
-            batch["pseudo_reward"],
+            level["pseudo_reward"],
             v_next,
             v_next_int,
         )
-        idx = self.C.index(learner, table, batch["state"], batch["child"])
-        self.record_td(learner, batch["node"], target_int - self.C_int.read(idx, valid), valid)
+        idx = self.C.index(learner, table, level["state"], level["child"])
+        self.record_td(learner, level["node"], target_int - self.C_int.read(idx, valid), valid)
         self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
         if self.internal:
             self.C_int.update(idx.reshape(-1), target_int.reshape(-1), alpha, valid.reshape(-1))
-        if self.all_states and "visited_state" in batch.keys():
+        if self.all_states and "visited_state" in level.keys():
             # every state s_k the child passed through gets the target discounted from s_k
-            late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
-            remaining = batch["duration"][..., None] - batch["visited_time"]
+            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
+            remaining = level["duration"][..., None] - level["visited_time"]
             ext, internal = self.targets(
                 discount(self.gamma, remaining),
                 torch.zeros_like(remaining),
                 terminal[..., None],
-                batch["pseudo_reward"][..., None],
+                level["pseudo_reward"][..., None],
                 v_next[..., None],
                 v_next_int[..., None],
             )
             vidx = self.C.index(
                 learner[..., None],
                 table[..., None],
-                batch["visited_state"],
-                batch["child"][..., None],
+                level["visited_state"],
+                level["child"][..., None],
             )
             self.C.update(vidx.reshape(-1), ext.reshape(-1), alpha, late.reshape(-1))
             if self.internal:
                 self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
 
-        prim_table = lookup(lay.inst_table, batch["prim_inst"].clamp_min(0))
-        pidx = self.V.index(batch["learner"], prim_table, batch["prim_state"], 0)
-        self.V.update(pidx, batch["prim_reward"], alpha, batch["prim_valid"])
+        prim_table = lookup(lay.inst_table, prim["inst"].clamp_min(0))
+        pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
+        self.V.update(pidx, prim["reward"], alpha, prim["valid"])

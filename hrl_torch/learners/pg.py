@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import torch
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule, as_schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
@@ -58,9 +59,10 @@ def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
     A level ``d >= 1`` is popped exactly when its parent (level ``d - 1``) emits a transition;
     the root ends with the episode (or by its own termination).
     """
-    root_end = batch["terminal"][:, 0] | batch["truncated"][:, 0]
+    level = batch[LEVEL]
+    root_end = level["terminal"][:, 0] | level["truncated"][:, 0]
     parent = (depths - 1).clamp_min(0)
-    return torch.where(depths[None, :] == 0, root_end[:, None], batch["valid"][:, parent])
+    return torch.where(depths[None, :] == 0, root_end[:, None], level["valid"][:, parent])
 
 
 def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
@@ -341,9 +343,10 @@ class HPGRLLearner(Learner):
         External reward of the child plus the node's shaping, pseudo and feature-based
         internal rewards.
         """
-        r = (batch["reward"] + batch["internal_reward"] + batch["pseudo_reward"])[:, depths]
+        level = batch[LEVEL]
+        r = (level["reward"] + level["internal_reward"] + level["pseudo_reward"])[:, depths]
         if self.feature_reward:
-            feats = batch["next_features"][:, depths]
+            feats = level["next_features"][:, depths]
             for fn, fn_nodes in self.feature_reward:
                 uses = (node[..., None] == fn_nodes.to(node.device)).any(-1)
                 r = r + torch.where(uses, fn(feats.reshape(-1, feats.shape[-1])).view_as(r), 0.0)
@@ -351,11 +354,12 @@ class HPGRLLearner(Learner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Lines 11-16 of Algorithm 3 for every PG transition in ``batch``."""
+        level = batch[LEVEL]
         cfg, depths = self.config, self.depths
         b = batch.batch_size[0]
         rows = self._row_state(b, self.theta.device)
-        node = batch["node"][:, depths]
-        valid = batch["valid"][:, depths] & (self.node_group[node] >= 0)
+        node = level["node"][:, depths]
+        valid = level["valid"][:, depths] & (self.node_group[node] >= 0)
         r = self.rewards(batch, node, depths)
         count, k = rows["count"], cfg.trace_len
         if bool((valid & (count >= k)).any()):
@@ -511,6 +515,7 @@ class ActorCriticLearner(HPGRLLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Critic SARSA(0) on the previous step, actor step on this one."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         b = batch.batch_size[0]
         rows = self._row_state(b, self.theta.device)
         if "prev_tiles" not in rows:
@@ -521,11 +526,11 @@ class ActorCriticLearner(HPGRLLearner):
             rows["prev_r"] = torch.zeros(b, device=dev)
             rows["has_prev"] = torch.zeros(b, dtype=torch.bool, device=dev)
         depths = self.depths[:1]
-        valid = batch["valid"][:, 0]
-        r = self.rewards(batch, batch["node"][:, depths], depths)[:, 0]
-        learner, feats = batch["learner"], batch["features"][:, 0]
+        valid = level["valid"][:, 0]
+        r = self.rewards(batch, level["node"][:, depths], depths)[:, 0]
+        learner, feats = batch["learner"], level["features"][:, 0]
         tiles = torch.where(
-            valid[:, None], self._q_tiles(learner, feats, batch["prim_action"]), self.w.numel() - 1
+            valid[:, None], self._q_tiles(learner, feats, prim["action"]), self.w.numel() - 1
         )
         q = self.w[tiles].mean(-1)
         # actor: baseline = the critic at the actor's mean action
@@ -548,7 +553,7 @@ class ActorCriticLearner(HPGRLLearner):
         delta_prev = torch.where(
             prev, rows["prev_r"] + q - self.w[rows["prev_tiles"]].mean(-1), 0.0
         )
-        terminal = batch["terminal"][:, 0] & valid
+        terminal = level["terminal"][:, 0] & valid
         delta_now = torch.where(terminal, r - q, 0.0)
         self.w.index_add_(
             0,
@@ -559,8 +564,8 @@ class ActorCriticLearner(HPGRLLearner):
             0, tiles.reshape(-1), (c_alpha * delta_now[:, None]).expand_as(tiles).reshape(-1)
         )
         self.w[-1] = 0.0
-        self.record_td(learner, batch["node"][:, 0], delta_prev, prev)
-        keep = valid & ~terminal & ~batch["truncated"][:, 0]
+        self.record_td(learner, level["node"][:, 0], delta_prev, prev)
+        keep = valid & ~terminal & ~level["truncated"][:, 0]
         rows["prev_tiles"] = torch.where(keep[:, None], tiles, self.w.numel() - 1)
         rows["prev_r"] = r
         rows["has_prev"] = keep

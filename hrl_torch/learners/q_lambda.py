@@ -32,6 +32,7 @@ from collections.abc import Sequence
 
 import torch
 
+from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
@@ -131,7 +132,8 @@ class QLambdaLearner(TabularLearner):
         lay, depths = self.layout, self.depths
         b = batch.batch_size[0]
         rows = self._row_state(b, self.Q.data.device)
-        pick = lambda key: batch[key][:, depths]  # noqa: E731
+        level = batch[LEVEL]
+        pick = lambda key: level[key][:, depths]  # noqa: E731
         node, inst, terminal = pick("node"), pick("inst"), pick("terminal")
         learner = batch["learner"][:, None].expand_as(node)
         table = lay.inst_table[inst.clamp_min(0)]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import LEVEL
 from hrl_torch.graph import StepContext
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.ops import columns, discount, lookup
@@ -58,16 +59,17 @@ class SMDPQLearner(TabularLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """One SMDP Q-learning step for every finished child in ``batch``."""
+        level = batch[LEVEL]
         lay = self.layout
-        learner = batch["learner"][:, None].expand_as(batch["inst"])
-        table = lookup(lay.inst_table, batch["inst"].clamp_min(0))
-        terminal = batch["terminal"]
-        valid = batch["valid"] & (batch["child_done"] | terminal)
-        factor = discount(self.gamma, batch["duration"])
+        learner = batch["learner"][:, None].expand_as(level["inst"])
+        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
+        terminal = level["terminal"]
+        valid = level["valid"] & (level["child_done"] | terminal)
+        factor = discount(self.gamma, level["duration"])
         continuation = torch.where(
-            terminal, batch["pseudo_reward"], ctx.values["V"].gather(1, table)
+            terminal, level["pseudo_reward"], ctx.values["V"].gather(1, table)
         )
-        target = batch["discounted_reward"] + batch["internal_reward"] + factor * continuation
-        idx = self.Q.index(learner, table, batch["state"], batch["child"])
-        self.record_td(learner, batch["node"], target - self.Q.read(idx, valid), valid)
+        target = level["discounted_reward"] + level["internal_reward"] + factor * continuation
+        idx = self.Q.index(learner, table, level["state"], level["child"])
+        self.record_td(learner, level["node"], target - self.Q.read(idx, valid), valid)
         self.Q.update(idx.reshape(-1), target.reshape(-1), self.alpha(step), valid.reshape(-1))

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
@@ -100,20 +101,21 @@ class RVIQLearner(TabularLearner):
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """One RVI Q-learning step for every primitive step (level 0 of the flat stack)."""
+        level = batch[LEVEL]
         lay = self.layout
-        valid = batch["valid"][:, 0] & (batch["child_done"][:, 0] | batch["terminal"][:, 0])
+        valid = level["valid"][:, 0] & (level["child_done"][:, 0] | level["terminal"][:, 0])
         learner = batch["learner"]
-        table = lay.inst_table[batch["inst"][:, 0].clamp_min(0)]
+        table = lay.inst_table[level["inst"][:, 0].clamp_min(0)]
         if self.continuous:
-            t = batch["duration"][:, 0] / self.time_unit
+            t = level["duration"][:, 0] / self.time_unit
         else:
-            t = batch["steps"][:, 0].float()
+            t = level["steps"][:, 0].float()
         v_next = ctx.values["V"].gather(1, table[:, None]).squeeze(1)
-        v_next = torch.where(batch["terminal"][:, 0], torch.zeros_like(v_next), v_next)
-        target = batch["reward"][:, 0] - self.reference()[learner] * t + v_next
-        idx = self.Q.index(learner, table, batch["state"][:, 0], batch["child"][:, 0])
+        v_next = torch.where(level["terminal"][:, 0], torch.zeros_like(v_next), v_next)
+        target = level["reward"][:, 0] - self.reference()[learner] * t + v_next
+        idx = self.Q.index(learner, table, level["state"][:, 0], level["child"][:, 0])
         old = self.Q.read(idx, valid)
-        self.record_td(learner, batch["node"][:, 0], target - old, valid)
+        self.record_td(learner, level["node"][:, 0], target - old, valid)
         self.Q.update(idx, target, self.alpha(step), valid)
         # keep sum(Q) exact: every updated entry's change once, however many rows hit it
         change = self.Q.read(idx, valid) - old

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
@@ -159,28 +160,29 @@ class ThreePartLearner(TabularLearner):
     # ------------------------------------------------------------------ updates
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Algorithm 1's updates for every finished child and primitive step in ``batch``."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
         alpha = self.alpha(step)
         lay = self.layout
-        inst = batch["inst"]
+        inst = level["inst"]
         learner = batch["learner"][:, None].expand_as(inst)
         table = lay.inst_table[inst.clamp_min(0)]
-        terminal = batch["terminal"]
-        valid = batch["valid"] & (batch["child_done"] | terminal)
+        terminal = level["terminal"]
+        valid = level["valid"] & (level["child_done"] | terminal)
         t = self.time_of(batch)
         v_next = ctx.values["V"].gather(1, table)
         ce_next = ctx.values["CE"].gather(1, table)
-        parent = batch["parent_inst"]
+        parent = level["parent_inst"]
         outer = ctx.values["W"].gather(1, lay.inst_table[parent.clamp_min(0)])
         outer = torch.where(parent >= 0, outer, torch.zeros_like(outer))
         c_target, ce_target = three_part_targets(self.discount(t), terminal, v_next, ce_next, outer)
-        idx = self.C.index(learner, table, batch["state"], batch["child"])
-        self.record_td(learner, batch["node"], c_target - self.C.read(idx, valid), valid)
+        idx = self.C.index(learner, table, level["state"], level["child"])
+        self.record_td(learner, level["node"], c_target - self.C.read(idx, valid), valid)
         flat_idx, flat_valid = idx.reshape(-1), valid.reshape(-1)
         self.C.update(flat_idx, c_target.reshape(-1), alpha, flat_valid)  # line 17
         self.CE.update(flat_idx, ce_target.reshape(-1), alpha, flat_valid)  # lines 19 / 21
-        if self.all_states and "visited_state" in batch.keys():
+        if self.all_states and "visited_state" in level.keys():
             # line 16: every x in ChildSeq, with the time left after it
-            late = batch["visited_valid"] & (batch["visited_steps"] > 0) & valid[..., None]
+            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
             left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             c_k, ce_k = three_part_targets(
                 self.discount(left),
@@ -192,11 +194,11 @@ class ThreePartLearner(TabularLearner):
             vidx = self.C.index(
                 learner[..., None],
                 table[..., None],
-                batch["visited_state"],
-                batch["child"][..., None],
+                level["visited_state"],
+                level["child"][..., None],
             ).reshape(-1)
             self.C.update(vidx, c_k.reshape(-1), alpha, late.reshape(-1))
             self.CE.update(vidx, ce_k.reshape(-1), alpha, late.reshape(-1))
-        prim_table = lay.inst_table[batch["prim_inst"].clamp_min(0)]
-        pidx = self.V.index(batch["learner"], prim_table, batch["prim_state"], 0)
-        self.V.update(pidx, self.primitive_target(batch), alpha, batch["prim_valid"])  # line 5
+        prim_table = lay.inst_table[prim["inst"].clamp_min(0)]
+        pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
+        self.V.update(pidx, self.primitive_target(batch), alpha, prim["valid"])  # line 5

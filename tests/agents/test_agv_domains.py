@@ -22,8 +22,9 @@ def test_chapter_4_domains_are_registered():
 @pytest.mark.parametrize("domain", ["agv", "agv-ct"])
 @pytest.mark.parametrize("algo", ["har", "rar", "hdr", "rvi-q"])
 def test_every_agv_algorithm_learns_something(domain, algo):
-    opts = RunOptions(seeds=[0, 1], envs_per_learner=8, eval_episodes=2, progress=False,
-                      tensorboard=False)
+    opts = RunOptions(
+        seeds=[0, 1], envs_per_learner=8, eval_episodes=2, progress=False, tensorboard=False
+    )
     trainer = build_trainer(registry.get(domain), algo, opts)
     trainer.evaluator.horizon, trainer.evaluator.burn_in = 30, 10
     trainer.train(steps=8 * 150)
@@ -38,16 +39,32 @@ def test_every_agv_algorithm_learns_something(domain, algo):
 
 
 def test_rvi_q_holds_the_full_agv_state_space_as_one_table():
-    opts = RunOptions(seeds=[0], envs_per_learner=1, eval_episodes=0, progress=False,
-                      tensorboard=False)
+    opts = RunOptions(
+        seeds=[0], envs_per_learner=1, eval_episodes=0, progress=False, tensorboard=False
+    )
     learner = build_trainer(registry.get("agv"), "rvi-q", opts).learner
     assert learner.Q.data.shape == (1, 1_347_192 * 5)
 
 
 def test_cli_run_writes_per_seed_throughput(tmp_path, capsys):
-    code = main(["train", "small-agv", "--algo", "har", "--seeds", "2", "--steps", "1600",
-                 "--eval-every", "800", "--out", str(tmp_path), "--no-progress",
-                 "--no-tensorboard"])
+    code = main(
+        [
+            "train",
+            "small-agv",
+            "--algo",
+            "har",
+            "--seeds",
+            "2",
+            "--steps",
+            "1600",
+            "--eval-every",
+            "800",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--no-tensorboard",
+        ]
+    )
     assert code == 0
     (run,) = tmp_path.iterdir()
     summary = json.loads((run / "summary.json").read_text())

@@ -204,7 +204,7 @@ def test_every_subtask_terminates_under_a_scripted_policy(continuous):
     ctx = g.context(td)
     delivered = 0.0
     for t in range(STEPS[continuous]):
-        deciding = ex.top <= 0  # the root chooses in these rows
+        deciding = ex.stack.top <= 0  # the root chooses in these rows
         assert bool((td["status"][deciding] == EMPTY).all())  # why Root ignores the status
         action = ex.act(ctx, policy, t)
         td = env.step(action)

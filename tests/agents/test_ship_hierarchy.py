@@ -90,8 +90,10 @@ def test_population_equals_separate_runs_and_internal_rewards_stay_below():
     update = together.learner.update
 
     def spy(batch, ctx, step):
-        valid = batch["valid"][:, 0]
-        root_rewards.append((batch["reward"][:, 0][valid], batch["steps"][:, 0][valid]))
+        valid = batch["level", "valid"][:, 0]
+        root_rewards.append(
+            (batch["level", "reward"][:, 0][valid], batch["level", "steps"][:, 0][valid])
+        )
         update(batch, ctx, step)
 
     together.learner.update = spy

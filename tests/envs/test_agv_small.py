@@ -38,8 +38,14 @@ def test_26_locations_times_3_statuses():
     assert (agv.N_LOCATIONS, agv.N_STATUS, agv.N_STATES) == (26, 3, 78)
     assert collections.Counter(agv.ROOM) == {agv.MACHINE_ROOM: 18, agv.DOOR: 2, agv.GOAL_ROOM: 6}
     named = {k: agv.CELLS[v] for k, v in agv.LABELS.items()}
-    assert named == {"M1": (0, 4), "M2": (2, 4), "D1": (0, 6), "D2": (2, 6), "G1": (2, 7),
-                     "G2": (0, 7)}
+    assert named == {
+        "M1": (0, 4),
+        "M2": (2, 4),
+        "D1": (0, 6),
+        "D2": (2, 6),
+        "G1": (2, 7),
+        "G2": (0, 7),
+    }
     assert agv.ROOM[agv.M1] == agv.ROOM[agv.M2] == agv.MACHINE_ROOM
     assert agv.ROOM[agv.G1] == agv.ROOM[agv.G2] == agv.GOAL_ROOM
 

@@ -70,13 +70,15 @@ def test_global_gain_is_reward_over_time_of_greedy_primitive_steps(algo):
     reward = torch.zeros(3, dtype=torch.float64)
     time = torch.zeros(3, dtype=torch.float64)
     for b in rec.batches:
-        seen = (b["prim_valid"] & b["prim_greedy"]).double()
-        reward.index_add_(0, b["learner"], b["prim_reward"].double() * seen)
+        seen = (b["primitive", "valid"] & b["primitive", "greedy"]).double()
+        reward.index_add_(0, b["learner"], b["primitive", "reward"].double() * seen)
         time.index_add_(0, b["learner"], seen)  # one step per primitive in discrete time
     assert torch.equal(learner.gains.reward[:, 0], reward)
     assert torch.equal(learner.gains.time[:, 0], time)
     assert torch.allclose(learner.gain.double(), reward / time)
-    exploring = sum(int((b["prim_valid"] & ~b["prim_greedy"]).sum()) for b in rec.batches)
+    exploring = sum(
+        int((b["primitive", "valid"] & ~b["primitive", "greedy"]).sum()) for b in rec.batches
+    )
     assert exploring > 100  # random steps happened and were left out
 
 
@@ -88,10 +90,10 @@ def test_rar_gain_of_each_subtask_is_reward_over_time_of_its_greedy_children():
     reward = torch.zeros(2, g.n_nodes, dtype=torch.float64)
     steps = torch.zeros(2, g.n_nodes, dtype=torch.float64)
     for b in rec.batches:
-        seen = (b["valid"] & b["greedy"]).double()
-        idx = (b["learner"][:, None] * g.n_nodes + b["node"]).reshape(-1)
-        reward.view(-1).index_add_(0, idx, (b["reward"].double() * seen).reshape(-1))
-        steps.view(-1).index_add_(0, idx, (b["steps"].double() * seen).reshape(-1))
+        seen = (b["level", "valid"] & b["level", "greedy"]).double()
+        idx = (b["learner"][:, None] * g.n_nodes + b["level", "node"]).reshape(-1)
+        reward.view(-1).index_add_(0, idx, (b["level", "reward"].double() * seen).reshape(-1))
+        steps.view(-1).index_add_(0, idx, (b["level", "steps"].double() * seen).reshape(-1))
     assert torch.equal(learner.gains.reward, reward)
     assert torch.equal(learner.gains.time, steps)
     navs = torch.tensor([g.index[n] for n in ("NavM1", "NavM2", "NavG1", "NavG2")])
@@ -104,8 +106,13 @@ def test_rar_gain_of_each_subtask_is_reward_over_time_of_its_greedy_children():
 def test_gain_prior_counts_as_initial_sums():
     gains = GainEstimate(2, 1, prior=(1.0, 10.0))
     assert torch.allclose(gains.gain, torch.ones(2, 1))
-    gains.add(torch.tensor([0, 0]), 0, torch.tensor([-1.0, -1.0]), torch.tensor([1.0, 1.0]),
-              torch.tensor([True, False]))
+    gains.add(
+        torch.tensor([0, 0]),
+        0,
+        torch.tensor([-1.0, -1.0]),
+        torch.tensor([1.0, 1.0]),
+        torch.tensor([True, False]),
+    )
     assert gains.gain[0, 0] == pytest.approx(9 / 11) and gains.gain[1, 0] == 1.0
     assert (GainEstimate(1).gain == 0).all()  # no time yet
 
@@ -159,9 +166,13 @@ def two_step_graph(with_subtask: bool):
     prim = Primitive("a", 0, **by_state)
     if not with_subtask:
         return TaskGraph("Root", [Subtask("Root", ["a"], **by_state), prim], 1)
-    go = Subtask("Go", ["a"], **by_state, terminated=lambda o: torch.ones_like(o["observation"],
-                                                                                dtype=torch.bool),
-                 event_termination=True)
+    go = Subtask(
+        "Go",
+        ["a"],
+        **by_state,
+        terminated=lambda o: torch.ones_like(o["observation"], dtype=torch.bool),
+        event_termination=True,
+    )
     return TaskGraph("Root", [Subtask("Root", ["Go"], **by_state), go, prim], 1)
 
 
@@ -219,9 +230,13 @@ def test_continuous_time_rvi_q_time_unit():
 def test_hdr_discounts_by_duration():
     discount = HDRLearner(two_step_graph(True), 1, gamma=0.9, continuous=True).discount
     assert float(discount(torch.tensor(2.5))) == pytest.approx(0.9**2.5)
-    c, ce = three_part_targets(torch.tensor([0.5, 0.5]), torch.tensor([False, True]),
-                               torch.tensor([4.0, 4.0]), torch.tensor([-2.0, -2.0]),
-                               torch.tensor([10.0, 10.0]))
+    c, ce = three_part_targets(
+        torch.tensor([0.5, 0.5]),
+        torch.tensor([False, True]),
+        torch.tensor([4.0, 4.0]),
+        torch.tensor([-2.0, -2.0]),
+        torch.tensor([10.0, 10.0]),
+    )
     assert c.tolist() == [2.0, 0.0] and ce.tolist() == [-1.0, 5.0]
 
 

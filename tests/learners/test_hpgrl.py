@@ -117,8 +117,8 @@ def run(online, n_learners=12, envs=128, steps=400, baseline=0.0):
         ctx = graph.context(td, rows)
         batch = executor.observe(td, ctx)
         learner.update(batch, ctx, 0)
-        done = batch["valid"][:, 0]
-        flat = (rows * 2 + batch["child"][:, 0]) * N + batch["state"][:, 0]
+        done = batch["level", "valid"][:, 0]
+        flat = (rows * 2 + batch["level", "child"][:, 0]) * N + batch["level", "state"][:, 0]
         starts.view(-1).index_add_(0, flat[done], torch.ones(int(done.sum())))
         action = executor.act(ctx, policy, 0)
     return learner, theta, starts

@@ -49,16 +49,16 @@ def test_q_lambda_equals_watkins_reference():
         batch = executor.observe(td, ctx)
         learner.update(batch, ctx, 0)
         for p in range(len(seeds)):
-            if batch["valid"][p, 0]:
-                end = bool(batch["terminal"][p, 0] or batch["truncated"][p, 0])
+            if batch["level", "valid"][p, 0]:
+                end = bool(batch["level", "terminal"][p, 0] or batch["level", "truncated"][p, 0])
                 seen[p].append(
                     (
-                        int(batch["state"][p, 0]),
-                        int(batch["child"][p, 0]),
-                        float(batch["reward"][p, 0]),
-                        int(batch["next_state"][p, 0]),
-                        bool(batch["terminal"][p, 0]),
-                        bool(batch["greedy"][p, 0]),
+                        int(batch["level", "state"][p, 0]),
+                        int(batch["level", "child"][p, 0]),
+                        float(batch["level", "reward"][p, 0]),
+                        int(batch["level", "next_state"][p, 0]),
+                        bool(batch["level", "terminal"][p, 0]),
+                        bool(batch["level", "greedy"][p, 0]),
                         end,
                     )
                 )
