@@ -1,18 +1,16 @@
-"""Parameterised stochastic policies for policy-gradient subtasks (Chapter 5), batched.
+"""Policy heads of policy-gradient subtasks (Chapter 5) and their maths, batched.
 
-Every parameter tensor has a leading population dimension ``P`` (independent learners); row
-``b`` of a batch uses the parameters of learner ``learner[b]``. Each policy gives its action
-probabilities (or density), samples from uniforms / normals drawn with a ``BatchRNG``, and
-returns the likelihood-ratio term ``grad mu(a|s) / mu(a|s)`` of Equation 5.3 as a sparse
-increment ``(index, value)`` into its flattened parameters: ``z.view(-1).index_add_(0,
-index.flatten(), value.flatten())`` accumulates the eligibility ``z``, and the update
-``theta += alpha * R * z`` of Algorithm 3 (line 16) is a dense or sparse add of the same kind.
+A policy head (``hrl_torch.heads.PolicyHead``) keeps, per learner of the population, one block
+of the PG learner's flat parameters ``theta``; ``act`` chooses for a batch of rows and returns
+the likelihood-ratio term ``grad mu(a|s) / mu(a|s)`` of Equation 5.3 as a sparse increment
+``(index, score)`` into ``theta``: the eligibility ``z`` of Algorithm 3 (line 14) and the update
+``theta += alpha * R * z`` (line 16) are ``index_add_`` of such pairs.
 
-- ``TabularSoftmaxPolicy``: one parameter per (state, action) pair, as HPGRL on taxi-fuel
-  (Section 5.2.1): ``mu(a|s) = exp(theta[s, a]) / sum_b exp(theta[s, b])`` over available
-  actions; its likelihood ratio w.r.t. ``theta[s, :]`` is ``onehot(a) - mu(.|s)``.
-- ``TileGaussianPolicy``: the low-level ship policy (Section 5.3): ``u ~ N(A, sigma^2)`` with
-  ``A = sum_i w_i phi_i / sum_i phi_i`` over CMAC tiles, action ``low + (high - low) *
+- ``SoftmaxPolicyHead``: one parameter per (state, child), as HPGRL on taxi-fuel (Section
+  5.2.1): ``mu(a|s) = exp(theta[s, a]) / sum_b exp(theta[s, b])`` over available children; its
+  likelihood ratio w.r.t. ``theta[s, :]`` is ``onehot(a) - mu(.|s)``.
+- ``TileGaussianPolicyHead``: the low-level ship policy (Section 5.3): ``u ~ N(A, sigma^2)``
+  with ``A = sum_i w_i phi_i / sum_i phi_i`` over CMAC tiles, action ``low + (high - low) *
   sigmoid(u)``. The likelihood ratio is taken for ``u``; the squashing is a fixed invertible map
   that does not depend on ``w``, so it cancels in ``grad mu / mu``:
   ``(u - A) / sigma^2 * phi_i / sum_j phi_j`` for each active tile ``i``.
@@ -23,8 +21,10 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import nn
 
+from hrl_torch.exploration import masked_argmax
+from hrl_torch.graph import GraphError, TaskGraph
+from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput
 from hrl_torch.tiles import TileCoder
 
 # -- tabular softmax
@@ -69,80 +69,7 @@ def softmax_score(probs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
     return onehot - probs
 
 
-def tabular_row_index(
-    learner: torch.Tensor, state: torch.Tensor, n_states: int, n_actions: int
-) -> torch.Tensor:
-    """Flat indices ``[B, A]`` of ``theta[learner, state, :]`` in ``theta.view(-1)``."""
-    row = (learner * n_states + state) * n_actions
-    return row.unsqueeze(-1) + torch.arange(n_actions, device=row.device)
-
-
-class TabularSoftmaxPolicy(nn.Module):
-    """Softmax policy with one parameter per (state, action): ``theta [P, S, A]`` (a buffer).
-
-    Args:
-        n_learners: population size ``P``.
-        n_states: number of (abstract) states ``S``.
-        n_actions: number of actions ``A``.
-        init: initial value of every parameter (0: uniform policy).
-    """
-
-    def __init__(self, n_learners: int, n_states: int, n_actions: int, init: float = 0.0) -> None:
-        super().__init__()
-        self.n_states = n_states
-        self.n_actions = n_actions
-        self.register_buffer("theta", torch.full((n_learners, n_states, n_actions), float(init)))
-
-    def probs(
-        self, learner: torch.Tensor, state: torch.Tensor, available: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """``mu(.|s)`` ``[B, A]``."""
-        return softmax_probs(self.theta, learner, state, available)
-
-    def sample(
-        self,
-        learner: torch.Tensor,
-        state: torch.Tensor,
-        u: torch.Tensor,
-        available: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Actions ``[B]`` drawn with uniforms ``u [B]`` (e.g. ``rng.uniform()``)."""
-        return sample_categorical(self.probs(learner, state, available), u)
-
-    def log_prob(
-        self,
-        learner: torch.Tensor,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        available: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """``log mu(a|s)`` ``[B]``."""
-        return softmax_log_prob(self.probs(learner, state, available), action)
-
-    def score(
-        self,
-        learner: torch.Tensor,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        available: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Likelihood ratio as ``(index [B, A] into theta.view(-1), value [B, A])``."""
-        value = softmax_score(self.probs(learner, state, available), action)
-        return tabular_row_index(learner, state, self.n_states, self.n_actions), value
-
-
 # -- tile-coded Gaussian
-
-
-def tile_mean(w: torch.Tensor, learner: torch.Tensor, tiles: torch.Tensor) -> torch.Tensor:
-    """``A = sum_i w_i phi_i / sum_i phi_i`` ``[B]`` for binary features.
-
-    Args:
-        w: weights ``[P, F]``.
-        learner: ``[B]``.
-        tiles: active tile indices ``[B, T]`` (one per tiling, so ``sum_i phi_i = T``).
-    """
-    return w[learner.unsqueeze(-1), tiles].mean(-1)
 
 
 def squash(u: torch.Tensor, low: float, high: float) -> torch.Tensor:
@@ -178,63 +105,114 @@ def gaussian_tile_score(
     return per_tile.unsqueeze(-1).expand(*per_tile.shape, n_tiles)
 
 
-class TileGaussianPolicy(nn.Module):
-    """Gaussian policy over tile-coded states, squashed into ``[low, high]``: ``w [P, F]``.
+def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
+    """Standard normals from two uniforms in ``[0, 1)`` (same shapes)."""
+    return torch.sqrt(-2.0 * torch.log(u1.clamp_min(1e-7))) * torch.cos(2.0 * math.pi * u2)
+
+
+# -- heads
+
+
+class SoftmaxPolicyHead(PolicyHead):
+    """Softmax over a node's available children, one parameter per (abstract state, child).
+
+    The block is ``[n_states, stride]`` with ``stride`` the graph's ``max_children``, so the
+    softmax heads of every PG node share one ``act`` call.
 
     Args:
-        n_learners: population size ``P``.
-        coder: the tile coder of the (local) state; ``F = coder.n_features``.
+        name: the head's name (its subtask or group).
+        n_states: abstract states of the node(s).
+        n_children: children of the node(s).
+        stride: columns of the block (``graph.max_children``).
+    """
+
+    def __init__(self, name: str, n_states: int, n_children: int, stride: int) -> None:
+        super().__init__(name, n_states, stride)
+        self.n_children = int(n_children)
+        self.width = int(stride)
+
+    def batch_key(self) -> object:
+        """Every softmax head of a learner shares one call."""
+        return (SoftmaxPolicyHead, self.n_cols)
+
+    def check(self, graph: TaskGraph, node: int) -> None:
+        """The node's states and children must match the head's block."""
+        x = graph.nodes[node]
+        if (x.n_states, len(x.children_names)) != (self.n_states, self.n_children):
+            raise GraphError(f"nodes of PG group {self.name!r} differ in shape: {x.name!r}")
+
+    def act(self, theta: torch.Tensor, inp: PolicyInput, greedy: bool) -> PolicyChoice:
+        """Sample from (or take the mode of) ``mu(.|s)``; score ``onehot(a) - mu(.|s)``."""
+        ok = inp.available
+        cols = torch.arange(ok.shape[1], device=ok.device)
+        index = inp.base[:, None] + inp.state[:, None] * self.n_cols + cols
+        index = torch.where(ok, index, theta.numel() - 1)
+        logits = theta.index_select(0, index.reshape(-1)).view(index.shape)
+        logits = logits.masked_fill(~ok, -math.inf)
+        logits = torch.where(ok.any(-1, keepdim=True), logits, 0.0)
+        probs = torch.softmax(logits, -1)
+        best = masked_argmax(logits, ok)
+        pick = best if greedy else sample_categorical(probs, inp.u[:, 0])
+        score = torch.where(ok, softmax_score(probs, pick), 0.0)
+        return PolicyChoice(pick, pick == best, None, index, score)
+
+
+class TileGaussianPolicyHead(PolicyHead):
+    """Gaussian over tile-coded features, squashed into ``[low, high]``: ``w [n_tiles]``.
+
+    Args:
+        name: the head's name (its subtask or group).
+        coder: the tile coder of the node's features.
+        sigma: standard deviation of ``u`` (1 in the text's density).
         action_low: lower end of the action range (-15 deg/s for the ship).
         action_high: upper end of the action range.
-        sigma: standard deviation of ``u`` (1 in the text's density).
-        init: initial weight (0: mean action at the middle of the range).
     """
+
+    continuous = True
 
     def __init__(
         self,
-        n_learners: int,
+        name: str,
         coder: TileCoder,
+        sigma: float = 1.0,
         action_low: float = -15.0,
         action_high: float = 15.0,
-        sigma: float = 1.0,
-        init: float = 0.0,
     ) -> None:
-        super().__init__()
         if sigma <= 0:
             raise ValueError(f"sigma must be positive, got {sigma}")
+        super().__init__(name, 1, coder.n_features)
         self.coder = coder
-        self.action_low = float(action_low)
-        self.action_high = float(action_high)
-        self.sigma = float(sigma)
-        self.n_features = coder.n_features
-        self.register_buffer("w", torch.full((n_learners, coder.n_features), float(init)))
+        self.sigma, self.low, self.high = float(sigma), float(action_low), float(action_high)
+        self.width = coder.n_tilings
 
-    def tiles(self, obs: torch.Tensor) -> torch.Tensor:
-        """Active tiles ``[B, T]`` of states ``obs [B, D]``."""
-        return self.coder(obs)
+    def batch_key(self) -> object:
+        """Gaussian heads over one coder with one sigma and range share one call."""
+        return (TileGaussianPolicyHead, id(self.coder), self.sigma, self.low, self.high)
 
-    def mean(self, learner: torch.Tensor, tiles: torch.Tensor) -> torch.Tensor:
-        """``A`` ``[B]``."""
-        return tile_mean(self.w, learner, tiles)
+    def check(self, graph: TaskGraph, node: int) -> None:
+        """The node needs one continuous primitive child and enough features."""
+        x = graph.nodes[node]
+        children = [graph.node(c) for c in x.children_names]
+        if len(children) != 1 or not children[0].is_primitive or not children[0].action_dim:
+            raise GraphError(f"PG node {x.name!r}: a Gaussian head needs one continuous child")
+        dims = self.coder.resolution.numel()
+        if x.n_features < dims:
+            raise GraphError(
+                f"PG node {x.name!r} needs >= {dims} features for the tile coder, "
+                f"has {x.n_features}"
+            )
 
-    def sample(
-        self, learner: torch.Tensor, tiles: torch.Tensor, noise: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(action [B], u [B])`` from standard normals ``noise [B]`` (e.g. ``rng.normal()``).
+    def mean(self, theta: torch.Tensor, base: torch.Tensor, features: torch.Tensor):
+        """``(active tiles [n, T] as flat indices, A [n])`` at the rows' features."""
+        dims = self.coder.resolution.numel()
+        tiles = self.coder(features[:, :dims]) + base[:, None]
+        return tiles, theta.index_select(0, tiles.reshape(-1)).view(tiles.shape).mean(-1)
 
-        ``u = A + sigma * noise`` is what ``score`` needs; ``action = squash(u)``.
-        """
-        u = self.mean(learner, tiles) + self.sigma * noise
-        return squash(u, self.action_low, self.action_high), u
-
-    def log_prob(self, learner: torch.Tensor, tiles: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """``log N(u; A, sigma^2)`` ``[B]`` (density of the pre-squash value)."""
-        return gaussian_log_prob(u, self.mean(learner, tiles), self.sigma)
-
-    def score(
-        self, learner: torch.Tensor, tiles: torch.Tensor, u: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Likelihood ratio as ``(index [B, T] into w.view(-1), value [B, T])``."""
-        value = gaussian_tile_score(u, self.mean(learner, tiles), tiles.shape[-1], self.sigma)
-        index = learner.unsqueeze(-1) * self.n_features + tiles
-        return index, value
+    def act(self, theta: torch.Tensor, inp: PolicyInput, greedy: bool) -> PolicyChoice:
+        """``u = A + sigma z`` (or ``A``), action ``squash(u)``; score per active tile."""
+        tiles, mean = self.mean(theta, inp.base, inp.features)
+        pre = mean if greedy else mean + self.sigma * box_muller(inp.u[:, 1], inp.u[:, 2])
+        score = gaussian_tile_score(pre, mean, tiles.shape[-1], self.sigma)
+        flag = torch.full_like(inp.base, greedy, dtype=torch.bool)
+        child = torch.zeros_like(inp.base)
+        return PolicyChoice(child, flag, squash(pre, self.low, self.high), tiles, score)

@@ -97,6 +97,7 @@ class TableBank(nn.Module):
         store = torch.full((self.sentinel + 1,), float(init))
         store[-1] = 0.0
         self.register_buffer("store", store)
+        self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
         self._count = torch.zeros(0)
         self._sum = torch.zeros(0)
 
@@ -127,12 +128,28 @@ class TableBank(nn.Module):
             flat_index = torch.where(valid, flat_index, self.sentinel)
         return self.store.index_select(0, flat_index.reshape(-1)).view(flat_index.shape)
 
+    @property
+    def save_store(self) -> bool:
+        """Whether ``store`` is in the state dict (False when heads save views of it)."""
+        return "store" not in self._non_persistent_buffers_set
+
+    @save_store.setter
+    def save_store(self, value: bool) -> None:
+        if value:
+            self._non_persistent_buffers_set.discard("store")
+        else:
+            self._non_persistent_buffers_set.add("store")
+
+    def block(self, table: int) -> torch.Tensor:
+        """The ``[P, n_states, n_cols]`` tables of one node for every learner (a view)."""
+        start, n_states, n_cols = self._blocks[table]
+        return self.data[:, start : start + n_states * n_cols].view(
+            self.n_learners, n_states, n_cols
+        )
+
     def view(self, table: int, learner: int = 0) -> torch.Tensor:
         """The ``[n_states, n_cols]`` table of one node and learner (a view, for inspection)."""
-        start = int(self.offset[table])
-        n_cols = int(self.n_cols[table])
-        n = (int(self.offset[table + 1]) if table + 1 < len(self.offset) else self.total) - start
-        return self.data[learner, start : start + n].view(-1, n_cols)
+        return self.block(table)[learner]
 
     def update(
         self,

@@ -226,6 +226,7 @@ class Trainer:
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
+        self._eval_rng().load_state_dict({"counter": 0})
         agent = self.evaluation_agent(env, self._eval_rng())
         action = agent.start(env.reset())
         ret = torch.zeros(env.batch_size)

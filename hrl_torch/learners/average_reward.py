@@ -164,6 +164,7 @@ class RARLearner(TabularLearner):
         self.continuous = continuous
         self.C = self.completion_bank(init)
         self.V = self.primitive_bank()
+        self.attach_heads(C=self.C, V=self.V)
         self.gains = GainEstimate(n_learners, self.layout.n_tables, gain_prior)
 
     @property

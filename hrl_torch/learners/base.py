@@ -19,6 +19,7 @@ from torch import nn
 from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
+from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import columns, lookup
 from hrl_torch.rng import BatchRNG
 from hrl_torch.tables import TableBank, TableLayout
@@ -132,6 +133,10 @@ class TabularLearner(Learner):
         """
         idx, table = self.instance_index(bank, ctx, inst)
         return bank.read(idx, lookup(self.layout.table_child_valid, table)), table
+
+    def attach_heads(self, **banks: TableBank) -> None:
+        """Heads (``self.heads``) naming every table node's block of each of ``banks``."""
+        self.heads = attach_table_heads(self, self.graph, self.layout, banks)
 
     def time_of(self, batch, steps: str = "steps", duration: str = "duration") -> torch.Tensor:
         """Time of the children of ``batch``: steps ``N`` (discrete) or durations (continuous)."""

@@ -72,6 +72,13 @@ class HHLearner(TabularLearner):
         self.prim_count = TableBank(n_learners, prim_states, ones)
         self.prim_reward = TableBank(n_learners, prim_states, ones)
         self.prim_time = TableBank(n_learners, prim_states, ones)
+        self.attach_heads(
+            model=self.model,
+            H=self.H,
+            count=self.prim_count,
+            reward=self.prim_reward,
+            time=self.prim_time,
+        )
         self.gains = GainEstimate(n_learners, 1, gain_prior)
 
     @property

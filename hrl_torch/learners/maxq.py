@@ -61,6 +61,8 @@ class MaxQLearner(TabularLearner):
         self.C = self.completion_bank(init)
         self.C_int = self.completion_bank(init) if self.internal else self.C
         self.V = self.primitive_bank()
+        internal = {"C_int": self.C_int} if self.internal else {}
+        self.attach_heads(C=self.C, **internal, V=self.V)
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:

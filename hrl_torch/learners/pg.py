@@ -1,12 +1,13 @@
 """Policy-gradient learners (Chapter 5): HPGRL (Algorithm 3), flat PGRL and actor-critic.
 
-Every policy-gradient (PG) node ``i`` has a parameterised policy ``mu_i(a|s; theta_i)``: a softmax
-with one parameter per (abstract state, child) when its children are discrete, or a Gaussian
-over CMAC tiles of its continuous features when its only child is a continuous primitive
-(``hrl_torch.policies``). Nodes may share parameters by naming the same *group* (the ship's four
-diagonal directions share one low-level policy). Updates (Algorithm 3, lines 11-16, with
-Equation 5.3), after child ``a`` of ``i`` ran from ``s`` to ``s'`` with external reward ``R``
-(summed over the child) and internal reward ``r~_i`` of ``i``::
+Every policy-gradient (PG) node ``i`` has a parameterised policy ``mu_i(a|s; theta_i)``, its
+*policy head* (``hrl_torch.heads.PolicyHead``): by default a softmax with one parameter per
+(abstract state, child) when its children are discrete, or a Gaussian over CMAC tiles of its
+continuous features when its only child is a continuous primitive (``hrl_torch.policies``); any
+``PolicyHead`` subclass can be given instead. Nodes may share parameters by naming the same
+*group* (the ship's four diagonal directions share one low-level policy). Updates (Algorithm 3,
+lines 11-16, with Equation 5.3), after child ``a`` of ``i`` ran from ``s`` to ``s'`` with
+external reward ``R`` (summed over the child) and internal reward ``r~_i`` of ``i``::
 
     z_{k+1} = z_k + grad mu_i(a|s) / mu_i(a|s)          z = 0 at the renewal state s_i^*
     theta_{k+1} = theta_k + alpha_k (R + r~_i) z_{k+1}
@@ -36,18 +37,20 @@ SARSA(0); the actor steps ``beta (Q(s, a) - Q(s, a_mean)) grad log mu(a|s)`` eve
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
+from torch import nn
 
 from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule, as_schedule, masked_argmax
+from hrl_torch.exploration import Schedule, as_schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.learners.base import Learner
 from hrl_torch.ops import lookup
-from hrl_torch.policies import sample_categorical, squash
+from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
+from hrl_torch.tables import TableBank
 from hrl_torch.tiles import TileCoder
 
 FeatureReward = Callable[[torch.Tensor], torch.Tensor]
@@ -63,11 +66,6 @@ def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
     root_end = level["terminal"][:, 0] | level["truncated"][:, 0]
     parent = (depths - 1).clamp_min(0)
     return torch.where(depths[None, :] == 0, root_end[:, None], level["valid"][:, parent])
-
-
-def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
-    """Standard normals from two uniforms in ``[0, 1)`` (same shapes)."""
-    return torch.sqrt(-2.0 * torch.log(u1.clamp_min(1e-7))) * torch.cos(2.0 * math.pi * u2)
 
 
 @dataclass
@@ -134,6 +132,7 @@ class HPGRLLearner(Learner):
         nodes: Sequence[str] | Mapping[str, str] | None = None,
         coder: TileCoder | None = None,
         feature_reward: Mapping[str, FeatureReward] | None = None,
+        heads: Mapping[str, PolicyHead] | None = None,
     ) -> None:
         super().__init__(graph, n_learners)
         self.config = cfg = config or PGConfig()
@@ -142,14 +141,12 @@ class HPGRLLearner(Learner):
             nodes = [graph.names[k] for k in graph.subtasks()]
         groups = dict(nodes) if isinstance(nodes, Mapping) else {n: n for n in nodes}
         self.coder = coder
-        self._build_layout(groups)
+        self._build_heads(groups, dict(heads or {}))
         by_fn: dict[int, tuple[FeatureReward, list[int]]] = {}
         for name, fn in (feature_reward or {}).items():
             by_fn.setdefault(id(fn), (fn, []))[1].append(graph.index[name])
         # one call per distinct function: [(fn, node indices using it)]
         self.feature_reward = [(fn, torch.tensor(ks)) for fn, ks in by_fn.values()]
-        self.register_buffer("theta", torch.full((n_learners * self.total + 1,), float(cfg.init)))
-        self.theta[-1] = 0.0
         self.register_buffer("grad_sum", torch.zeros_like(self.theta), persistent=False)
         self.register_buffer(
             "cycles", torch.zeros(n_learners, len(self.group_names)), persistent=False
@@ -157,53 +154,51 @@ class HPGRLLearner(Learner):
         self.register_buffer("reward_to_go_mean", torch.zeros(n_learners, len(self.group_names)))
         self._rows: dict[str, torch.Tensor] = {}
 
-    # ------------------------------------------------------------------ layout
-    def _build_layout(self, groups: dict[str, str]) -> None:
+    # ------------------------------------------------------------------ heads
+    def default_head(self, group: str, node: int) -> PolicyHead:
+        """Softmax over discrete children; a tile-coded Gaussian for a continuous child."""
+        g, cfg = self.graph, self.config
+        x = g.nodes[node]
+        children = [g.node(c) for c in x.children_names]
+        if len(children) == 1 and children[0].is_primitive and children[0].action_dim > 0:
+            if self.coder is None:
+                raise GraphError(f"PG node {x.name!r} has a continuous child but no coder")
+            return TileGaussianPolicyHead(
+                group, self.coder, cfg.sigma, cfg.action_low, cfg.action_high
+            )
+        return SoftmaxPolicyHead(group, x.n_states, len(children), g.max_children)
+
+    def _build_heads(self, groups: dict[str, str], heads: dict[str, PolicyHead]) -> None:
+        """One head per group (given or default), its block of the flat ``theta``, batches."""
         g = self.graph
-        names, kinds, sizes, widths, n_states, spec = [], [], [], [], [], {}
+        names: list[str] = []
         node_group = torch.full((g.n_nodes,), -1, dtype=torch.long)
         for name, group in groups.items():
-            node = g.node(name)
-            if node.is_primitive:
+            k = g.index[name]
+            if g.nodes[k].is_primitive:
                 raise GraphError(f"PG node {name!r} is a primitive")
-            children = [g.node(c) for c in node.children_names]
-            gauss = len(children) == 1 and children[0].is_primitive and children[0].action_dim > 0
-            if gauss:
-                if self.coder is None:
-                    raise GraphError(f"PG node {name!r} has a continuous child but no coder")
-                if node.n_features < self.coder.resolution.numel():
-                    raise GraphError(
-                        f"PG node {name!r} needs >= {self.coder.resolution.numel()} "
-                        f"features for the tile coder, has {node.n_features}"
-                    )
-                this = ("gaussian", 1, self.coder.n_tilings, self.coder.n_features)
-            else:
-                n = len(children)
-                this = ("softmax", node.n_states, n, node.n_states * n)
-            if group not in spec:
-                spec[group] = this
+            if group not in heads:
+                heads[group] = self.default_head(group, k)
+            heads[group].check(g, k)
+            if group not in names:
                 names.append(group)
-                kinds.append(this[0])
-                n_states.append(this[1])
-                widths.append(this[2])
-                sizes.append(this[3])
-            elif spec[group] != this:
-                raise GraphError(f"nodes of PG group {group!r} differ in shape: {name!r}")
-            node_group[g.index[name]] = names.index(group)
-        sizes_t = torch.tensor(sizes, dtype=torch.long)
+            node_group[k] = names.index(group)
         self.group_names = names
-        self._group_states = n_states
-        self.total = max(int(sizes_t.sum()), 1)
-        self.sentinel = self.n_learners * self.total
+        self.heads = nn.ModuleDict({n: heads[n] for n in names})
+        shape = torch.tensor([[heads[n].n_states, heads[n].n_cols] for n in names]).view(-1, 2)
+        self.params = TableBank(self.n_learners, shape[:, 0], shape[:, 1], self.config.init)
+        self.params.save_store = False
+        for t, name in enumerate(names):
+            self.heads[name].bind(self.params, t)
+        self.total, self.sentinel = self.params.total, self.params.sentinel
+        self.width = max([h.width for h in heads.values() if h.name in names] + [1])
+        self.has_gauss = any(self.heads[n].continuous for n in names)
+        # heads that share an ``act`` call, and the groups each call serves
+        batches: dict[object, list[int]] = {}
+        for t, name in enumerate(names):
+            batches.setdefault(self.heads[name].batch_key(), []).append(t)
+        self._batches = [(self.heads[names[ts[0]]], torch.tensor(ts)) for ts in batches.values()]
         self.register_buffer("node_group", node_group, persistent=False)
-        self.register_buffer("group_offset", torch.cumsum(sizes_t, 0) - sizes_t, persistent=False)
-        self.register_buffer("group_width", torch.tensor(widths), persistent=False)
-        self.register_buffer(
-            "group_gauss", torch.tensor([k == "gaussian" for k in kinds]), persistent=False
-        )
-        self.has_softmax = "softmax" in kinds
-        self.has_gauss = "gaussian" in kinds
-        self.width = max([g.max_children if self.has_softmax else 0] + widths)
         pg_inst = node_group[g.inst_node] >= 0
         depths = sorted({int(d) for d in g.inst_depth[pg_inst]})
         depth_slot = torch.full((g.max_levels,), len(depths), dtype=torch.long)
@@ -211,18 +206,24 @@ class HPGRLLearner(Learner):
         self.register_buffer("depths", torch.tensor(depths, dtype=torch.long), persistent=False)
         self.register_buffer("depth_slot", depth_slot, persistent=False)
 
+    @property
+    def theta(self) -> torch.Tensor:
+        """Every learner's parameters, flat ``[P * total + 1]`` (last: a sentinel, always 0)."""
+        return self.params.store
+
     def group_view(self, group: str, learner: int = 0, buffer: str = "theta") -> torch.Tensor:
         """One group's block of ``theta`` (or ``grad_sum``) for one learner, as a view.
 
         Softmax groups are ``[n_states, n_children]``, Gaussian groups ``[n_tiles]``.
         """
         k = self.group_names.index(group)
-        start = learner * self.total + int(self.group_offset[k])
-        flat = getattr(self, buffer)
-        if bool(self.group_gauss[k]):
-            return flat[start : start + self.coder.n_features]
-        width, n = int(self.group_width[k]), self._group_states[k]
-        return flat[start : start + n * width].view(n, width)
+        head = self.heads[group]
+        flat = getattr(self, buffer)[: self.sentinel].view(self.n_learners, self.total)
+        start, size = int(self.params.offset[k]), head.n_states * head.n_cols
+        block = flat[learner, start : start + size].view(head.n_states, head.n_cols)
+        if head.continuous:
+            return block[0]
+        return block[:, : getattr(head, "n_children", head.n_cols)]
 
     # ------------------------------------------------------------------ per-row state
     def _row_state(self, b: int, device: torch.device) -> dict[str, torch.Tensor]:
@@ -257,11 +258,12 @@ class HPGRLLearner(Learner):
         available: torch.Tensor,
         u: torch.Tensor,
         greedy: bool = False,
+        step: int = 0,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Choose children of PG instances ``inst [B]`` (other rows: ignored values).
 
-        ``u [B, 3]`` uniforms (a softmax sample, two for a normal). With ``greedy`` the mode is
-        taken (most probable child, the Gaussian's mean) and nothing is recorded; otherwise the
+        ``u [B, 3]`` uniforms (a softmax sample, two for a normal). Each node's head chooses
+        for its rows; with ``greedy`` it takes the mode and nothing is recorded, otherwise the
         likelihood-ratio term of each choice is kept until the child ends (``update``). Only
         the rows on PG nodes are computed.
 
@@ -275,56 +277,58 @@ class HPGRLLearner(Learner):
         rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)
         if rows.numel() == 0:
             return choice, flag, action
-        inst, node, u = inst[rows], node[rows], u[rows]
-        gid = lookup(self.node_group, node)
-        base = ctx.learner[rows] * self.total + lookup(self.group_offset, gid)
-        n = rows.shape[0]
-        index = torch.full((n, self.width), self.sentinel, dtype=torch.long, device=dev)
-        value = torch.zeros(n, self.width, device=dev)
-        sub_choice = torch.zeros(n, dtype=torch.long, device=dev)
-        sub_flag = torch.full((n,), greedy, dtype=torch.bool, device=dev)
-        if self.has_softmax:
-            soft = ~lookup(self.group_gauss, gid)
-            a = available.shape[1]
-            state = ctx.abstract[rows].gather(1, node[:, None]).squeeze(1)
-            ok = available[rows] & soft[:, None]
-            idx = base[:, None] + state[:, None] * lookup(self.group_width, gid)[:, None]
-            idx = torch.where(ok, idx + torch.arange(a, device=dev), self.sentinel)
-            logits = lookup(self.theta, idx).masked_fill(~ok, -math.inf)
-            logits = torch.where(ok.any(-1, keepdim=True), logits, 0.0)
-            probs = torch.softmax(logits, -1)
-            best = masked_argmax(logits, ok)
-            pick = best if greedy else sample_categorical(probs, u[:, 0])
-            score = torch.nn.functional.one_hot(pick, a).to(probs.dtype) - probs
-            sub_choice = torch.where(soft, pick, sub_choice)
-            sub_flag = torch.where(soft, pick == best, sub_flag)
-            index[:, :a] = torch.where(soft[:, None], idx, index[:, :a])
-            value[:, :a] = torch.where(soft[:, None] & ok, score, value[:, :a])
-        if self.has_gauss:
-            cfg, coder = self.config, self.coder
-            gauss = lookup(self.group_gauss, gid)
-            dims = coder.resolution.numel()
-            feats = ctx.features[rows].gather(
-                1, node.view(-1, 1, 1).expand(-1, 1, ctx.features.shape[2])
-            )[:, 0, :dims]
-            tiles = torch.where(gauss[:, None], coder(feats) + base[:, None], self.sentinel)
-            mean = lookup(self.theta, tiles).mean(-1)
-            pre = mean if greedy else mean + cfg.sigma * box_muller(u[:, 1], u[:, 2])
-            per_tile = (pre - mean) / (cfg.sigma**2 * coder.n_tilings)
-            t = coder.n_tilings
-            index[:, :t] = torch.where(gauss[:, None], tiles, index[:, :t])
-            value[:, :t] = torch.where(gauss[:, None], per_tile[:, None], value[:, :t])
-            sub_choice = torch.where(gauss, 0, sub_choice)
-            sub_action = squash(pre, cfg.action_low, cfg.action_high)
-            action[rows, 0] = torch.where(gauss, sub_action, 0.0)
-        choice[rows] = sub_choice
-        flag[rows] = sub_flag
+        inst, node, gid = inst[rows], node[rows], lookup(self.node_group, node[rows])
+        features = None
+        if ctx.features is not None:
+            f = ctx.features.shape[2]
+            features = ctx.features[rows].gather(1, node.view(-1, 1, 1).expand(-1, 1, f))[:, 0]
+        inp = PolicyInput(
+            base=ctx.learner[rows] * self.total + lookup(self.params.offset, gid),
+            state=ctx.abstract[rows].gather(1, node[:, None]).squeeze(1),
+            features=features,
+            available=available[rows],
+            u=u[rows],
+            step=step,
+        )
+        out = self._act_heads(inp, gid, greedy)
+        choice[rows], flag[rows] = out.child, out.greedy
+        if action is not None and out.action is not None:
+            action[rows, 0] = out.action
         if not greedy:
             state = self._row_state(b, dev)
             slot = lookup(self.depth_slot, lookup(g.inst_depth, inst))
-            state["pending_index"][rows, slot] = index
-            state["pending_value"][rows, slot] = value
+            state["pending_index"][rows, slot] = out.index
+            state["pending_value"][rows, slot] = out.score
         return choice, flag, action
+
+    def _act_heads(self, inp: PolicyInput, gid: torch.Tensor, greedy: bool) -> PolicyChoice:
+        """Every batch of heads acts on its rows; the choices padded to ``width`` and merged."""
+        n, dev = gid.shape[0], gid.device
+        index = torch.full((n, self.width), self.sentinel, dtype=torch.long, device=dev)
+        score = torch.zeros(n, self.width, device=dev)
+        child = torch.zeros(n, dtype=torch.long, device=dev)
+        flag = torch.full((n,), greedy, dtype=torch.bool, device=dev)
+        action = torch.zeros(n, device=dev) if self.has_gauss else None
+        for head, groups in self._batches:
+            if len(self._batches) == 1:
+                sel, part = slice(None), inp
+            else:
+                sel = torch.isin(gid, groups.to(dev)).nonzero().squeeze(1)
+                part = PolicyInput(
+                    inp.base[sel],
+                    inp.state[sel],
+                    None if inp.features is None else inp.features[sel],
+                    inp.available[sel],
+                    inp.u[sel],
+                    inp.step,
+                )
+            out = head.act(self.theta, part, greedy)
+            k = out.index.shape[1]
+            index[sel, :k], score[sel, :k] = out.index, out.score
+            child[sel], flag[sel] = out.child, out.greedy
+            if out.action is not None:
+                action[sel] = out.action
+        return PolicyChoice(child, flag, action, index, score)
 
     def make_policy(self, exploration, rng, evaluate: bool = False) -> PGPolicy:
         """The policy of a graph whose nodes are all PG.
@@ -463,7 +467,7 @@ class PGPolicy:
     def select(self, inst, ctx, available, step, push):
         """``(child slot, greedy flag, action)`` for the ``push``-th push of the step."""
         u = self.rng.uniform(3, counter=self._first + push)
-        return self.learner.select(inst, ctx, available, u, self.greedy)
+        return self.learner.select(inst, ctx, available, u, self.greedy, step)
 
 
 class ActorCriticLearner(HPGRLLearner):
@@ -501,45 +505,41 @@ class ActorCriticLearner(HPGRLLearner):
         config = config or PGConfig()
         config = PGConfig(**{**config.__dict__, "trace_len": 1, "online": True})
         super().__init__(graph, n_learners, config, [graph.root_name], coder, feature_reward)
-        if not bool(self.group_gauss[0]):
+        if not self.has_gauss:
             raise GraphError("ActorCriticLearner needs a root with one continuous child")
-        self.critic_coder = critic_coder
+        self.actor = self.heads[graph.root_name]
         self.critic_alpha = as_schedule(critic_alpha)
-        self.critic_total = critic_coder.n_features
-        self.register_buffer("w", torch.zeros(n_learners * self.critic_total + 1))
+        self.critics = nn.ModuleDict(
+            {graph.root_name: TileValueHead(graph.root_name, critic_coder, n_learners)}
+        )
+        self.critic = self.critics[graph.root_name]
 
     def _q_tiles(self, learner, features, action) -> torch.Tensor:
-        dims = self.critic_coder.resolution.numel() - 1
-        x = torch.cat([features[:, :dims], action.reshape(-1, 1)], dim=1)
-        return self.critic_coder(x) + (learner * self.critic_total)[:, None]
+        dims = self.critic.coder.resolution.numel() - 1
+        return self.critic.tiles(learner, torch.cat([features[:, :dims], action.reshape(-1, 1)], 1))
 
     def update(self, batch, ctx: StepContext, step: int) -> None:
         """Critic SARSA(0) on the previous step, actor step on this one."""
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         b = batch.batch_size[0]
         rows = self._row_state(b, self.theta.device)
+        critic = self.critic
+        none = critic.w.numel() - 1  # the critic's sentinel
         if "prev_tiles" not in rows:
-            t, dev = self.critic_coder.n_tilings, self.w.device
-            rows["prev_tiles"] = torch.full(
-                (b, t), self.w.numel() - 1, dtype=torch.long, device=dev
-            )
+            t, dev = critic.coder.n_tilings, critic.w.device
+            rows["prev_tiles"] = torch.full((b, t), none, dtype=torch.long, device=dev)
             rows["prev_r"] = torch.zeros(b, device=dev)
             rows["has_prev"] = torch.zeros(b, dtype=torch.bool, device=dev)
         depths = self.depths[:1]
         valid = level["valid"][:, 0]
         r = self.rewards(batch, level["node"][:, depths], depths)[:, 0]
         learner, feats = batch["learner"], level["features"][:, 0]
-        tiles = torch.where(
-            valid[:, None], self._q_tiles(learner, feats, prim["action"]), self.w.numel() - 1
-        )
-        q = self.w[tiles].mean(-1)
+        tiles = torch.where(valid[:, None], self._q_tiles(learner, feats, prim["action"]), none)
+        q = critic.value(tiles)
         # actor: baseline = the critic at the actor's mean action
-        actor_tiles = self.coder(feats[:, : self.coder.resolution.numel()])
-        mean = self.theta[actor_tiles + (learner * self.total)[:, None]].mean(-1)
-        cfg = self.config
-        q_mean = self.w[
-            self._q_tiles(learner, feats, squash(mean, cfg.action_low, cfg.action_high))
-        ].mean(-1)
+        _, mean = self.actor.mean(self.theta, learner * self.total, feats)
+        actor = self.actor
+        q_mean = critic.value(self._q_tiles(learner, feats, squash(mean, actor.low, actor.high)))
         advantage = torch.where(valid, q - q_mean, 0.0)
         slot0 = rows["pending_index"][:, 0], rows["pending_value"][:, 0]
         alpha = self.alpha(step)
@@ -550,22 +550,13 @@ class ActorCriticLearner(HPGRLLearner):
         # critic: the previous step bootstraps from Q(s, a) of this one; a terminal step at once
         c_alpha = self.critic_alpha(step)
         prev = rows["has_prev"] & valid
-        delta_prev = torch.where(
-            prev, rows["prev_r"] + q - self.w[rows["prev_tiles"]].mean(-1), 0.0
-        )
+        delta_prev = torch.where(prev, rows["prev_r"] + q - critic.value(rows["prev_tiles"]), 0.0)
         terminal = level["terminal"][:, 0] & valid
         delta_now = torch.where(terminal, r - q, 0.0)
-        self.w.index_add_(
-            0,
-            rows["prev_tiles"].reshape(-1),
-            (c_alpha * delta_prev[:, None]).expand_as(tiles).reshape(-1),
-        )
-        self.w.index_add_(
-            0, tiles.reshape(-1), (c_alpha * delta_now[:, None]).expand_as(tiles).reshape(-1)
-        )
-        self.w[-1] = 0.0
+        critic.add(rows["prev_tiles"], c_alpha * delta_prev)
+        critic.add(tiles, c_alpha * delta_now)
         self.record_td(learner, level["node"][:, 0], delta_prev, prev)
         keep = valid & ~terminal & ~level["truncated"][:, 0]
-        rows["prev_tiles"] = torch.where(keep[:, None], tiles, self.w.numel() - 1)
+        rows["prev_tiles"] = torch.where(keep[:, None], tiles, none)
         rows["prev_r"] = r
         rows["has_prev"] = keep

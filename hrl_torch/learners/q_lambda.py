@@ -73,6 +73,7 @@ class QLambdaLearner(TabularLearner):
         lay = self.layout
         n_states = torch.where(value_node[lay.table_node], lay.table_n_states, 0)
         self.Q = TableBank(n_learners, n_states, lay.table_n_children.clamp_min(1), init)
+        self.attach_heads(Q=self.Q)
         self.lam = float(lam)
         self.trace_len = int(trace_len)
         self.register_buffer("value_node", value_node, persistent=False)

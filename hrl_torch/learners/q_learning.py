@@ -38,6 +38,7 @@ class SMDPQLearner(TabularLearner):
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.Q = self.completion_bank(init)
+        self.attach_heads(Q=self.Q)
         self.composite = self.layout.composite_ids()
 
     def evaluate(self, ctx: StepContext) -> None:

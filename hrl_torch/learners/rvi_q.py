@@ -64,6 +64,7 @@ class RVIQLearner(TabularLearner):
         self.reference_state = reference_state
         self.time_unit = float(time_unit)
         self.Q = self.completion_bank(init)
+        self.attach_heads(Q=self.Q)
         self.n_entries = self.Q.total
         self.register_buffer(
             "q_sum", torch.full((n_learners,), float(init) * self.n_entries, dtype=torch.float64)

@@ -97,6 +97,7 @@ class ThreePartLearner(TabularLearner):
         self.C = self.completion_bank(init)
         self.CE = self.completion_bank(init if ce_init is None else ce_init)
         self.V = self.primitive_bank()
+        self.attach_heads(C=self.C, CE=self.CE, V=self.V)
         depth, parent = graph.inst_depth, graph.inst_parent
         composite = ~graph.node_is_primitive[graph.inst_node]
         # non-primitive instances by depth below the root, for the top-down W
