@@ -96,3 +96,16 @@ def test_corrupt_or_mismatched_checkpoint_changes_nothing(tmp_path):
     for k, v in trainer.learner.state_dict().items():
         assert torch.equal(v, before[k]), k
     trainer.train(steps=200 * 4)  # still trains
+
+
+def test_evaluation_is_a_function_of_the_tables_alone():
+    # untrained tables tie everywhere: the greedy choices are the tie-breaking draws, which must
+    # restart with every evaluation, as the eval env's episodes do
+    trainer = make([0, 1], SMDPQLearner, flat_graph, eval_episodes=20)
+    trainer.config.eval_max_steps = 50
+    first = trainer.evaluate()
+    trainer.train(steps=40)
+    trainer.learner.Q.data.zero_()
+    second = trainer.evaluate()
+    for a, b in zip(first, second, strict=True):
+        assert torch.equal(a, b)
