@@ -348,6 +348,7 @@ class HierarchicalExecutor:
             buf.scatter_(2, slot, torch.where(continuing, value.to(buf.dtype), old).unsqueeze(-1))
 
     def _transitions(self, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
+        """The finished SMDP transitions of this step (see the module docstring)."""
         g, s, d = self.graph, self.stack, self.depth
         node, terminal, emit = node[:, :d], terminal[:, :d], emit[:, :d]
         if g.internal_nodes:
@@ -387,27 +388,31 @@ class HierarchicalExecutor:
                 visited_valid=self._visit_slots[None, None, :]
                 < s.steps[:, :d].clamp_max(self.config.record_visited)[:, :, None],
             )
-        prim_inst = _at(s.inst, s.top)
-        primitive = {
+        b, dev = self.batch_size, self.device
+        return TensorDict(
+            {
+                "learner": self.learner,
+                LEVEL: TensorDict(level, batch_size=[b, d], device=dev),
+                PRIMITIVE: TensorDict(self._primitive(step_td, real), batch_size=[b], device=dev),
+            },
+            batch_size=[b],
+            device=dev,
+        )
+
+    def _primitive(self, step_td: TensorDict, real: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The fields of the primitive step each row just took (``batch[PRIMITIVE]``)."""
+        s = self.stack
+        inst = _at(s.inst, s.top)
+        return {
             "valid": real & (s.top >= 0),
-            "inst": prim_inst,
-            "node": lookup(g.inst_node, prim_inst.clamp_min(0)),
+            "inst": inst,
+            "node": lookup(self.graph.inst_node, inst.clamp_min(0)),
             "state": _at(s.start_state, s.top),
             "reward": step_td["reward"],
             "duration": step_td["duration"],
             "greedy": _at(s.greedy, s.top - 1),
             "action": self._action.clone(),
         }
-        b, dev = self.batch_size, self.device
-        return TensorDict(
-            {
-                "learner": self.learner,
-                LEVEL: TensorDict(level, batch_size=[b, d], device=dev),
-                PRIMITIVE: TensorDict(primitive, batch_size=[b], device=dev),
-            },
-            batch_size=[b],
-            device=dev,
-        )
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:

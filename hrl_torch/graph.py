@@ -362,6 +362,13 @@ class TaskGraph(nn.Module):
 
     # ------------------------------------------------------------------ compilation
     def _compile(self, max_instances: int) -> None:
+        """Tensors of the node graph, of its unrolled instance tree, and per-node capabilities."""
+        self._compile_nodes()
+        self._compile_instances(max_instances)
+        self._compile_capabilities()
+
+    def _compile_nodes(self) -> None:
+        """``node_*`` buffers: children, sizes, actions and heights of every node."""
         n = len(self.nodes)
         width = max(len(node.children_names) for node in self.nodes)
         children = torch.full((n, width), -1, dtype=torch.long)
@@ -380,7 +387,31 @@ class TaskGraph(nn.Module):
 
         for k in range(n):
             node_height(k)
-        # unroll the DAG into instances (paths from the root), breadth first
+        self.n_nodes = n
+        self.max_children = width
+
+        def per_node(fn, dtype=torch.long) -> torch.Tensor:
+            return torch.tensor([fn(x) for x in self.nodes], dtype=dtype)
+
+        for name, value in (
+            ("node_children", children),
+            ("node_n_children", per_node(lambda x: len(x.children_names))),
+            ("node_is_primitive", per_node(lambda x: x.is_primitive, torch.bool)),
+            ("node_n_states", per_node(lambda x: x.n_states)),
+            ("node_action", per_node(lambda x: x.action if x.is_primitive else -1)),
+            ("node_height", torch.tensor(height, dtype=torch.long)),
+            # nodes whose termination predicate never blocks a start: events and memory nodes
+            ("node_event", per_node(lambda x: bool(x.event_termination or x.memory_size), None)),
+        ):
+            self.register_buffer(name, value, persistent=False)
+        self.register_buffer(
+            "child_valid",
+            torch.arange(width)[None, :] < self.node_n_children[:, None],
+            persistent=False,
+        )
+
+    def _compile_instances(self, max_instances: int) -> None:
+        """``inst_*`` buffers: the DAG unrolled into instances (paths from the root)."""
         inst_node, inst_parent, inst_slot, inst_depth = (
             [self.index[self.root_name]],
             [-1],
@@ -388,7 +419,7 @@ class TaskGraph(nn.Module):
             [0],
         )
         head = 0
-        while head < len(inst_node):
+        while head < len(inst_node):  # breadth first
             node = self.nodes[inst_node[head]]
             for a, c in enumerate(node.children_names):
                 inst_node.append(self.index[c])
@@ -399,42 +430,12 @@ class TaskGraph(nn.Module):
                     raise GraphError(f"unrolled task tree exceeds {max_instances} instances")
             head += 1
         m = len(inst_node)
-        inst_children = torch.full((m, width), -1, dtype=torch.long)
+        inst_children = torch.full((m, self.max_children), -1, dtype=torch.long)
         for k in range(1, m):
             inst_children[inst_parent[k], inst_slot[k]] = k
-        self.n_nodes = n
         self.n_instances = m
-        self.max_children = width
         self.max_levels = max(inst_depth) + 1  # stack slots, primitive included
         as_long = dict(dtype=torch.long)
-        self.register_buffer("node_children", children, persistent=False)
-        self.register_buffer(
-            "node_n_children",
-            torch.tensor([len(x.children_names) for x in self.nodes], **as_long),
-            persistent=False,
-        )
-        self.register_buffer(
-            "node_is_primitive",
-            torch.tensor([x.is_primitive for x in self.nodes], dtype=torch.bool),
-            persistent=False,
-        )
-        self.register_buffer(
-            "node_n_states",
-            torch.tensor([x.n_states for x in self.nodes], **as_long),
-            persistent=False,
-        )
-        self.register_buffer(
-            "node_action",
-            torch.tensor([x.action if x.is_primitive else -1 for x in self.nodes], **as_long),
-            persistent=False,
-        )
-        self.register_buffer("node_height", torch.tensor(height, **as_long), persistent=False)
-        # nodes whose termination predicate never blocks a start: events and memory nodes
-        self.register_buffer(
-            "node_event",
-            torch.tensor([bool(x.event_termination or x.memory_size) for x in self.nodes]),
-            persistent=False,
-        )
         self.register_buffer("inst_node", torch.tensor(inst_node, **as_long), persistent=False)
         self.register_buffer("inst_parent", torch.tensor(inst_parent, **as_long), persistent=False)
         self.register_buffer("inst_depth", torch.tensor(inst_depth, **as_long), persistent=False)
@@ -442,11 +443,9 @@ class TaskGraph(nn.Module):
         self.register_buffer(
             "inst_is_primitive", self.node_is_primitive[self.inst_node], persistent=False
         )
-        self.register_buffer(
-            "child_valid",
-            torch.arange(width)[None, :] < self.node_n_children[:, None],
-            persistent=False,
-        )
+
+    def _compile_capabilities(self) -> None:
+        """Which nodes have internal rewards, custom predicates, features and memory."""
         self.internal_nodes = [k for k, x in enumerate(self.nodes) if x.has_internal_rewards()]
         self.shaping_nodes = [
             k
