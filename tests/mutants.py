@@ -29,7 +29,11 @@ MULTISTEP = "tests/learners/test_multistep_targets.py"
 MAXQ_EXACT = "tests/learners/test_maxq_exact.py"
 AVERAGE = "tests/learners/test_average_reward.py"
 RESUME = "tests/test_resume_every_algorithm.py"
-PG = ("tests/learners/test_pg_scores.py", "tests/learners/test_hpgrl.py")
+PG = (
+    "tests/test_policies.py",
+    "tests/learners/test_pg_scores.py",
+    "tests/learners/test_hpgrl.py",
+)
 EXECUTOR = "tests/test_executor.py"
 TABLES = "tests/test_tables.py"
 
