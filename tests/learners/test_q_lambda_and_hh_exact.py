@@ -1,5 +1,6 @@
 """Q(lambda) over multi-step children, HH-learning's model and gain, and the three-part
-decomposition's choices and ``W``, against hand-computed values on a four-state chain (0 -> 1 -> 2 -> 3, -1 per step, +10 for entering the terminal 3).
+decomposition's choices and ``W``, against hand-computed values on a four-state chain
+(0 -> 1 -> 2 -> 3, -1 per step, +10 for entering the terminal 3).
 
 The root chooses between ``Go2`` (runs to state 2: two steps from 0) and ``Go3`` (runs to 3);
 a scripted policy takes the first available child, so every episode is Go2 from 0 (two steps),
