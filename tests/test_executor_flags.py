@@ -1,0 +1,38 @@
+"""The executor's greedy flags: a choice counts as greedy only if every ancestor's was."""
+
+import torch
+
+from hrl_torch.executor import LEVEL, PRIMITIVE, HierarchicalExecutor
+from tests.learners.test_q_lambda_and_hh_exact import chain
+
+
+class ExploreAtRoot:
+    """First available child; the root's choices are flagged exploratory, the others greedy."""
+
+    def new_step(self):
+        pass
+
+    def select(self, inst, ctx, available, step, push):
+        return available.float().argmax(-1), inst != 0
+
+
+def test_a_greedy_child_of_an_exploratory_choice_is_not_greedy():
+    graph, env = chain()
+    ex = HierarchicalExecutor(graph, 1, 1)
+    ctx = graph.context(env.reset())
+    ex.act(ctx, ExploreAtRoot(), 0)
+    flags = []
+    for _ in range(3):  # Go2 runs 0 -> 1 -> 2, then Go3 2 -> 3
+        td = env.step(ex._action)
+        ctx = graph.context(td)
+        batch = ex.observe(td, ctx)
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
+        flags.append(bool(prim["greedy"][0]))
+        done = level["valid"][0]
+        if bool(done[1]):  # Go's child Right ended: own choice greedy, its ancestor's not
+            assert bool(level["own_greedy"][0, 1]) and not bool(level["greedy"][0, 1])
+        if bool(done[0]):  # the root's own choice was exploratory
+            assert not bool(level["own_greedy"][0, 0]) and not bool(level["greedy"][0, 0])
+        ex.act(ctx, ExploreAtRoot(), 0)
+    assert flags == [False, False, False]  # every primitive step lies under the root's choice
+    assert torch.equal(ex.stack.greedy[0, :2], torch.tensor([False, False]))
