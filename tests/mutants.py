@@ -25,7 +25,8 @@ class Mutant:
     first: tuple[str, ...] = ()
 
 
-MULTISTEP = "tests/learners/test_multistep_targets.py"
+MULTISTEP = "tests/learners/test_hand_computed_targets.py"
+SMALL_EXACT = "tests/learners/test_q_lambda_and_hh_exact.py"
 MAXQ_EXACT = "tests/learners/test_maxq_exact.py"
 AVERAGE = "tests/learners/test_average_reward.py"
 RESUME = "tests/test_resume_every_algorithm.py"
@@ -202,11 +203,11 @@ MUTANTS: list[Mutant] = [
         (MAXQ_EXACT,),
     ),
     Mutant(
-        "maxq-pseudo-at-every-step",
+        "maxq-pseudo-undiscounted",
         "hrl_torch/learners/maxq.py",
         "internal = internal + discount * torch.where(terminal, pseudo, v_next_int)",
-        "internal = internal + discount * torch.where(terminal, pseudo, v_next_int + pseudo)",
-        "MAXQ adds the pseudo reward at non-terminal states too",
+        "internal = internal + torch.where(terminal, pseudo, discount * v_next_int)",
+        "MAXQ's pseudo reward at s' is not discounted by gamma^N",
         (MULTISTEP,),
     ),
     Mutant(
@@ -215,7 +216,7 @@ MUTANTS: list[Mutant] = [
         "external = discount * torch.where(terminal, outer_next, ce_next)",
         "external = discount * torch.where(terminal, ce_next, outer_next)",
         "CE continues with its own value at a terminal state and the parent's elsewhere",
-        (MULTISTEP, AVERAGE),
+        (SMALL_EXACT, MULTISTEP, AVERAGE),
     ),
     Mutant(
         "three-part-choice-without-ce",
@@ -223,7 +224,10 @@ MUTANTS: list[Mutant] = [
         "return child_v + self.C.read(idx, ok) + self.CE.read(idx, ok)",
         "return child_v + self.C.read(idx, ok)",
         "three-part learners choose without the external completion (recursive optimality)",
-        (AVERAGE,),
+        (
+            SMALL_EXACT,
+            AVERAGE,
+        ),
     ),
     Mutant(
         "three-part-w-not-handed-over",
@@ -231,7 +235,7 @@ MUTANTS: list[Mutant] = [
         "outer[:, ids] = torch.where(ended, outer[:, self._parent[ids]], full[:, ids])",
         "outer[:, ids] = full[:, ids]",
         "W of an instance that ended does not hand over to its parent",
-        (MULTISTEP, AVERAGE),
+        (SMALL_EXACT, MULTISTEP, AVERAGE),
     ),
     Mutant(
         "har-gain-from-exploratory-steps",
@@ -255,7 +259,10 @@ MUTANTS: list[Mutant] = [
         'outcome = torch.where(terminal, n_out - 1, level["next_state"])',
         'outcome = torch.where(terminal, n_out - 1, level["state"])',
         "HH-learning's model records s instead of s'",
-        (AVERAGE,),
+        (
+            SMALL_EXACT,
+            AVERAGE,
+        ),
     ),
     Mutant(
         "hh-gain-sign",
@@ -263,7 +270,10 @@ MUTANTS: list[Mutant] = [
         "h = r - self.gain[ctx.learner][:, None] * tau",
         "h = r + self.gain[ctx.learner][:, None] * tau",
         "HH-learning adds the gain instead of subtracting it",
-        (AVERAGE,),
+        (
+            SMALL_EXACT,
+            AVERAGE,
+        ),
     ),
     Mutant(
         "rvi-reference-sign",
@@ -295,7 +305,10 @@ MUTANTS: list[Mutant] = [
         'discount = self.gamma ** pick("duration")',
         'discount = self.gamma ** torch.ones_like(pick("duration"))',
         "Q(lambda) discounts a multi-step child by gamma instead of gamma^tau",
-        ("tests/learners/test_q_lambda.py",),
+        (
+            SMALL_EXACT,
+            "tests/learners/test_q_lambda.py",
+        ),
     ),
     Mutant(
         "q-lambda-traces-not-cut",
@@ -303,7 +316,10 @@ MUTANTS: list[Mutant] = [
         'trace = torch.where(take(pick("greedy"))[:, None], trace, 0.0)',
         "trace = trace",
         "Watkins' Q(lambda) keeps traces across exploratory choices",
-        ("tests/learners/test_q_lambda.py",),
+        (
+            SMALL_EXACT,
+            "tests/learners/test_q_lambda.py",
+        ),
     ),
     # ---------------------------------------------------------------- tables and exploration
     Mutant(
@@ -361,7 +377,7 @@ MUTANTS: list[Mutant] = [
         "_scatter_at(s.greedy, slot, greedy & parent_greedy)",
         "_scatter_at(s.greedy, slot, greedy)",
         "a child counts as greedy although an ancestor explored",
-        (EXECUTOR, AVERAGE),
+        ("tests/test_executor_flags.py", EXECUTOR, AVERAGE),
     ),
     Mutant(
         "executor-emits-for-popped-level",
@@ -442,7 +458,7 @@ MUTANTS: list[Mutant] = [
         'if not isinstance(state, dict) or state.get("format") != FORMAT:',
         "if not isinstance(state, dict):",
         "a file of another format loads as a checkpoint",
-        ("tests/test_cli.py",),
+        ("tests/test_checkpoint.py", "tests/test_cli.py"),
     ),
     Mutant(
         "checkpoint-unsafe-load",
@@ -450,7 +466,7 @@ MUTANTS: list[Mutant] = [
         'state = torch.load(path, map_location="cpu", weights_only=True)',
         'state = torch.load(path, map_location="cpu", weights_only=False)',
         "checkpoints unpickled with arbitrary code execution",
-        ("tests/test_cli.py",),
+        ("tests/test_checkpoint.py", "tests/test_cli.py"),
     ),
     Mutant(
         "rng-stream-ignores-counter",

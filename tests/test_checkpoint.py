@@ -1,0 +1,42 @@
+"""Checkpoint files: only our format loads, never by unpickling arbitrary objects."""
+
+import pytest
+import torch
+
+from hrl_torch.checkpoint import FORMAT, CheckpointError, load_checkpoint, save_checkpoint
+
+
+def test_round_trip_and_atomic_write(tmp_path):
+    path = save_checkpoint(tmp_path / "run" / "ckpt.pt", {"step": 3, "w": torch.ones(2)})
+    state = load_checkpoint(path)
+    assert state["step"] == 3 and torch.equal(state["w"], torch.ones(2))
+    assert not list(path.parent.glob("*.tmp"))
+
+
+def test_a_torch_file_of_another_format_is_refused(tmp_path):
+    torch.save({"step": 3, "w": torch.ones(2)}, tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="not an hrl-torch/checkpoint"):
+        load_checkpoint(tmp_path / "other.pt")
+
+
+class Payload:
+    """An object whose unpickling would run code."""
+
+    def __reduce__(self):
+        return (print, ("unpickled arbitrary code",))
+
+
+def test_objects_that_need_unpickling_are_refused(tmp_path, capsys):
+    torch.save({"format": FORMAT, "evil": Payload()}, tmp_path / "evil.pt")
+    with pytest.raises(CheckpointError, match="corrupt or not a torch checkpoint"):
+        load_checkpoint(tmp_path / "evil.pt")
+    assert "unpickled arbitrary code" not in capsys.readouterr().out
+
+
+def test_missing_and_truncated_files(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "none.pt")
+    path = save_checkpoint(tmp_path / "ckpt.pt", {"step": 1})
+    path.write_bytes(path.read_bytes()[:40])
+    with pytest.raises(CheckpointError):
+        load_checkpoint(path)
