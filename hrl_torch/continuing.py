@@ -108,6 +108,14 @@ class ThroughputEvaluator:
         self.last_train = {names[0]: throughput.tolist(), names[1]: rate.tolist()}
         return dict(self.last_train)
 
+    def state_dict(self) -> dict:
+        """The training sums since the last log (checkpoints)."""
+        return {} if self._sums is None else {"sums": self._sums.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``."""
+        self._sums = state["sums"].clone() if "sums" in state else None
+
     def summary(self, learner: int) -> dict[str, float]:
         """Latest greedy and training throughput of one learner, for ``summary.json``."""
         out: dict = {"throughput_unit": self.unit}

@@ -419,6 +419,7 @@ class HierarchicalExecutor:
         """The Task-Stacks and the last action and observation, for exact resume."""
         return {
             "stack": self.stack.state_dict(),
+            "stats": self.stats.state_dict(),
             "action": self._action.clone(),
             "obs": {} if self._obs is None else self._obs.to_dict(),
         }
@@ -426,6 +427,7 @@ class HierarchicalExecutor:
     def load_state_dict(self, state: dict) -> None:
         """Restore a ``state_dict`` taken from an executor of the same shape."""
         self.stack.load_state_dict(state["stack"])
+        self.stats.load_state_dict(state["stats"])
         self._action = state["action"].to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
@@ -482,3 +484,12 @@ class ExecutorStats:
         """Zero every counter (after logging)."""
         for t in (self.calls, self.ends, self.successes, self.durations):
             t.zero_()
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The counters since the last log (a resumed run logs what it would have)."""
+        return {k: getattr(self, k).clone() for k in ("calls", "ends", "successes", "durations")}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore ``state_dict``."""
+        for k, v in state.items():
+            getattr(self, k).copy_(v)

@@ -329,6 +329,8 @@ class Trainer:
         if self.eval_env is not None:
             state["eval_env"] = self.eval_env.state_dict()
             state["eval_rng"] = self._eval_rng().state_dict()
+        if hasattr(self.evaluator, "state_dict"):
+            state["evaluator"] = self.evaluator.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -346,6 +348,8 @@ class Trainer:
         self.executor.load_state_dict(state["executor"])
         self.policy.rng.load_state_dict(state["explore_rng"])
         self._episodes.load_state_dict(state["episodes"])
+        if hasattr(self.evaluator, "load_state_dict"):
+            self.evaluator.load_state_dict(state.get("evaluator", {}))
         if self.eval_env is not None and "eval_env" in state:
             self.eval_env.load_state_dict(state["eval_env"])
             self._eval_rng().load_state_dict(state["eval_rng"])

@@ -29,7 +29,7 @@ MULTISTEP = "tests/learners/test_hand_computed_targets.py"
 SMALL_EXACT = "tests/learners/test_q_lambda_and_hh_exact.py"
 MAXQ_EXACT = "tests/learners/test_maxq_exact.py"
 AVERAGE = "tests/learners/test_average_reward.py"
-RESUME = "tests/test_resume_every_algorithm.py"
+RESUME = "tests/test_resume_all_algorithms.py"
 PG = (
     "tests/test_policies.py",
     "tests/learners/test_pg_scores.py",
@@ -515,6 +515,22 @@ MUTANTS: list[Mutant] = [
         "index[sel, :k] = out.index",
         "with several batches of PG heads, their likelihood-ratio terms are lost",
         ("tests/test_custom_head.py",) + PG,
+    ),
+    Mutant(
+        "executor-stats-not-restored",
+        "hrl_torch/executor.py",
+        '        self.stats.load_state_dict(state["stats"])\n',
+        "",
+        "the subtask statistics since the last log are lost on resume (logs differ)",
+        (RESUME,),
+    ),
+    Mutant(
+        "evaluator-sums-not-restored",
+        "hrl_torch/continuing.py",
+        'self._sums = state["sums"].clone() if "sums" in state else None',
+        "self._sums = None",
+        "a continuing task's training throughput since the last log is lost on resume",
+        (RESUME,),
     ),
     # ---------------------------------------------------------------- domain envs
     Mutant(

@@ -34,9 +34,10 @@ class Learner(nn.Module):
         super().__init__()
         self.graph = graph
         self.n_learners = n_learners
-        # |TD error| sums and counts per learner and node, read and reset by the logger
-        self.register_buffer("td_abs", torch.zeros(n_learners, graph.n_nodes), persistent=False)
-        self.register_buffer("td_count", torch.zeros(n_learners, graph.n_nodes), persistent=False)
+        # |TD error| sums and counts per learner and node since the last log (saved: a resumed
+        # run logs what an uninterrupted one would)
+        self.register_buffer("td_abs", torch.zeros(n_learners, graph.n_nodes))
+        self.register_buffer("td_count", torch.zeros(n_learners, graph.n_nodes))
 
     def evaluate(self, ctx: StepContext) -> None:
         """Fill ``ctx.values`` for the observations of ``ctx``."""
