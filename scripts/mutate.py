@@ -109,7 +109,7 @@ def main() -> int:
         "the verdict needs the full run)",
     )
     parser.add_argument("--workers", type=int, default=2, help="pytest-xdist workers")
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per suite run")
+    parser.add_argument("--timeout", type=float, default=300.0, help="seconds per suite run")
     args = parser.parse_args()
     chosen = [m for m in MUTANTS if not args.only or m.name in args.only]
     unknown = set(args.only) - {m.name for m in MUTANTS}
