@@ -122,7 +122,7 @@ def test_runaway_subtask_raises_or_aborts():
                     ex.observe(td, ctx)
                     ex.act(ctx, policy, 0)
         else:
-            calls = []
+            tops, root_ends = [], []
             for _ in range(20):
                 td = env.step(ex._action)
                 ctx = graph.context(td)
@@ -132,9 +132,19 @@ def test_runaway_subtask_raises_or_aborts():
                 assert not (
                     batch["level", "valid"][:, 0] & batch["level", "child_done"][:, 0]
                 ).any()
-                calls.append(int(ex.stack.top.min()))
+                tops.append(ex.stack.top.tolist())
+                root_ends.append(batch["level", "valid"][:, 0].tolist())
                 ex.act(ctx, policy, 0)
-            assert ex.stats.calls[0, graph.index["Loop"]] >= 4  # restarted after each abort
+            # by hand: after every step a0 (level 2) pops, leaving Loop on top (level 1); Loop's
+            # 7th step reaches the guard (inv_steps >= 7), so steps 7 and 14 also pop Loop,
+            # leaving Root on top (level 0) with a transition (its child ended, aborted), and
+            # the next act pushes Loop afresh; both rows run in lockstep
+            cycle = [1] * 6 + [0]
+            expected_top = (cycle * 3)[:20]
+            assert tops == [[t, t] for t in expected_top]
+            assert root_ends == [[t == 0, t == 0] for t in expected_top]
+            # Loop pushed 3 times per row (step 0, after step 7, after step 14), 2 rows
+            assert int(ex.stats.calls[0, graph.index["Loop"]]) == 6
 
 
 def test_no_available_child_is_a_clear_error():

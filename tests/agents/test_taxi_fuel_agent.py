@@ -22,21 +22,37 @@ def test_refuel_is_available_below_a_full_tank_and_ends_with_fillup():
     assert g.node("Root").n_states == 260
 
 
-def _train(algo, steps, seeds=3, eval_every=None):
+def _trainer(algo, steps, seeds=3, eval_every=None, envs_per_learner=None):
     opts = RunOptions(
         seeds=list(range(seeds)),
         steps=steps,
-        eval_every=eval_every or steps // 4,
+        eval_every=steps // 4 if eval_every is None else eval_every,
+        envs_per_learner=envs_per_learner,
         progress=False,
         tensorboard=False,
     )
-    return build_trainer(DOMAIN, algo, opts).train()
+    return build_trainer(DOMAIN, algo, opts)
+
+
+def _train(algo, steps, seeds=3, eval_every=None):
+    return _trainer(algo, steps, seeds, eval_every).train()
 
 
 def test_hpgrl_improves_the_greedy_return():
-    result = _train("hpgrl", 60_000)
-    first, last = result.curve[0][1], result.curve[-1][1]
-    assert sum(last) / 3 > sum(first) / 3 + 40, result.curve
+    # baseline, measured here: the untrained policy (every parameter 0; evaluated on its
+    # modes it takes the first available child everywhere) returns -28.69 on the eval
+    # episodes and never delivers (it runs dry after 9.7 steps on average). After 160,000
+    # env steps per seed (1,024 envs per seed) the seeds return -4.4, -5.3, -3.1 and deliver
+    # in 89, 79, 86% of the episodes; MAXQ-Q's best mean in Figure 5.3 is -4.8, and
+    # test_hpgrl_reaches_maxq_q_level (slow) checks that level
+    trainer = _trainer("hpgrl", 160_000, eval_every=0, envs_per_learner=1024)
+    untrained, untrained_success = trainer.evaluate()
+    assert torch.allclose(untrained, torch.tensor(-28.69), atol=0.01)
+    assert (untrained_success == 0).all()
+    result = trainer.train()
+    final = torch.tensor(result.final_eval)
+    assert (final > untrained + 20).all(), (untrained, result.final_eval)
+    assert (torch.tensor(result.final_success) > 0.75).all(), result.final_success
 
 
 def test_running_dry_is_not_a_success():

@@ -7,6 +7,7 @@ from agents.agv import dispatch_action
 from envs.agv import (
     BAYS,
     DROP_OFF,
+    EMPTY,
     FORWARD,
     IDLE,
     LOAD,
@@ -357,14 +358,58 @@ def test_dispatching_rule_delivers_assemblies(continuous, low):
     assert delivered / elapsed > low  # throughput per step / per second
 
 
-def test_random_policy_also_delivers():
-    env = AGVEnv([0], 128)
+def items_in_the_system(td):
+    """``[B]`` parts and assemblies inside the factory: bays, buffers, machines and the AGV."""
+    fields = ("warehouse", "drop_off", "pick_up")  # drop_off counts the part on the machine
+    held = sum(td[f"{name}_{i}"] for name in fields for i in (1, 2, 3))
+    return held + (td["status"] != EMPTY).long()
+
+
+def test_random_policy_conserves_parts_and_delivers():
+    # conservation, in every row after every step: parts that arrived = parts and assemblies
+    # in the system + assemblies delivered + parts lost (arrivals at a full bay and parts
+    # returned to a full bay). Arrivals are read from the hidden timer: inter-arrival times
+    # (10-14 steps) exceed the step (1), so a step has an arrival iff the timer was refilled
+    b, steps = 128, 1000
+    env = AGVEnv([0], b)
     env.reset()
-    delivered = 0.0
-    for _ in range(1000):
+    arrived, delivered, lost = torch.zeros(b), torch.zeros(b), torch.zeros(b)
+    dropped = torch.zeros(b)
+    for _ in range(steps):
+        timer = env.to_arrival.clone()
         td = env.step(env.rng.integers(N_ACTIONS))
-        delivered += float(td["assemblies_delivered"].sum())
-    assert delivered > 0
+        arrived += (env.to_arrival > timer - td["duration"] + 1e-3).float()
+        delivered += td["assemblies_delivered"]
+        lost += td["parts_lost"]
+        dropped += ((td["delivery"] >= 1) & (td["delivery"] <= 3)).float()
+        assert torch.equal(arrived, items_in_the_system(td) + delivered + lost)
+    # first arrival after 10-14 steps, then one every 10-14: 71 to 100 arrivals per row
+    assert int(arrived.min()) >= (steps - 14) // 14 + 1 and int(arrived.max()) <= steps // 10
+    assert abs(float(arrived.mean()) - steps / 12) < 2
+    # every flow of the identity is exercised: the random policy delivers some parts and
+    # assemblies (seeded: 142 parts dropped, 63 assemblies), and loses most arrivals
+    assert float(dropped.sum()) > 0 and float(delivered.sum()) > 0
+    assert float(lost.sum()) > 0.9 * float(arrived.sum())
+
+
+@pytest.mark.parametrize("continuous", [False, True])
+def test_dispatching_rule_delivers_exactly_the_parts_it_is_given(continuous):
+    # no arrivals; one part of each type waits in its bay: the dispatching rule must deliver
+    # exactly three assemblies per row (measured: all rows by step 112 in discrete time, 110
+    # in continuous time), lose nothing and end idle at WA with every buffer empty
+    b = 64
+    env = quiet_env(b, continuous=continuous)
+    env.warehouse[:] = 1
+    td = env.step(torch.full((b,), IDLE))  # observe the planted parts
+    delivered = torch.zeros(b)
+    for _ in range(200):
+        td = env.step(dispatch_action(td))
+        delivered += td["assemblies_delivered"]
+        assert float(td["parts_lost"].sum()) == 0
+        assert torch.equal(items_in_the_system(td) + delivered, torch.full((b,), 3.0))
+    assert torch.equal(delivered, torch.full((b,), 3.0))
+    assert int(items_in_the_system(td).sum()) == 0
+    assert bool((td["location"] == LOC["WA"]).all())
 
 
 # ---------------------------------------------------------------- batching and APIs
