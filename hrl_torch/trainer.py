@@ -325,6 +325,10 @@ class Trainer:
             "first_hit": [-1 if h is None else h for h in self.first_hit],
             "real_steps": self.real_steps.clone(),
             "next": dict(self._next),
+            "last_eval": {
+                "success": list(getattr(self, "_last_success", [])),
+                "steps": list(getattr(self, "_last_steps", [])),
+            },
         }
         if self.eval_env is not None:
             state["eval_env"] = self.eval_env.state_dict()
@@ -363,6 +367,10 @@ class Trainer:
         self.first_hit = [None if h < 0 else int(h) for h in state["first_hit"]]
         self.real_steps = state["real_steps"].clone()
         self._next = {k: int(v) for k, v in state["next"].items()}
+        last = state.get("last_eval", {})
+        if last.get("success"):  # the latest evaluation's details (a finished run resumed)
+            self._last_success = [float(x) for x in last["success"]]
+            self._last_steps = [float(x) for x in last["steps"]]
 
     def save(self, path) -> None:
         """Write a checkpoint of this trainer."""

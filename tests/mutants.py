@@ -29,7 +29,7 @@ MULTISTEP = "tests/learners/test_hand_computed_targets.py"
 SMALL_EXACT = "tests/learners/test_q_lambda_and_hh_exact.py"
 MAXQ_EXACT = "tests/learners/test_maxq_exact.py"
 AVERAGE = "tests/learners/test_average_reward.py"
-RESUME = "tests/test_resume_all_algorithms.py"
+RESUME = "tests/test_resume_every_algorithm.py"
 PG = (
     "tests/test_policies.py",
     "tests/learners/test_pg_scores.py",
@@ -531,6 +531,14 @@ MUTANTS: list[Mutant] = [
         "self._sums = None",
         "a continuing task's training throughput since the last log is lost on resume",
         (RESUME,),
+    ),
+    Mutant(
+        "last-evaluation-not-restored",
+        "hrl_torch/trainer.py",
+        'if last.get("success"):  # the latest evaluation\'s details (a finished run resumed)',
+        "if False:",
+        "a finished run resumed has no result (its latest evaluation was not saved)",
+        ("tests/test_checkpoint.py",),
     ),
     # ---------------------------------------------------------------- domain envs
     Mutant(

@@ -40,3 +40,31 @@ def test_missing_and_truncated_files(tmp_path):
     path.write_bytes(path.read_bytes()[:40])
     with pytest.raises(CheckpointError):
         load_checkpoint(path)
+
+
+def test_resuming_a_finished_run_returns_its_result(tmp_path):
+    import agents  # noqa: F401  (registers the domains)
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    opts = RunOptions(
+        seeds=[0], envs_per_learner=4, steps=80, eval_every=40, eval_episodes=2, progress=False
+    )
+
+    def make():
+        trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
+        trainer.config.eval_max_steps = 20
+        return trainer
+
+    first = make()
+    done = first.train()
+    first.save(tmp_path / "ckpt.pt")
+    again = make()
+    again.load(tmp_path / "ckpt.pt")
+    result = again.train()  # nothing left to train: the saved run's result
+    assert again.step == first.step
+    assert (result.final_eval, result.final_success, result.final_steps) == (
+        done.final_eval,
+        done.final_success,
+        done.final_steps,
+    )
