@@ -1,4 +1,4 @@
-"""MAXQ-Q, SMDP Q-learning and RAR over multi-step children, against their update rules written
+"""MAXQ-Q, SMDP Q-learning, RAR, HDR and HAR over multi-step children, against their update
 out by hand for one scripted path.
 
 The four-state chain of ``test_q_lambda_and_hh_exact`` (0 -> 1 -> 2 -> 3, rewards -1, -1, +10):
@@ -13,7 +13,7 @@ them.
 import torch
 
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
-from hrl_torch.learners import MaxQLearner, RARLearner, SMDPQLearner
+from hrl_torch.learners import HARLearner, HDRLearner, MaxQLearner, RARLearner, SMDPQLearner
 from tests.learners.test_q_lambda_and_hh_exact import chain, run
 
 GAMMA, ALPHA, PSEUDO, SHAPING, ROOT_SHAPING = 0.9, 0.5, 3.0, 0.5, 0.25
@@ -152,3 +152,51 @@ def test_rar_bootstraps_from_the_subtask_at_s_prime_and_charges_gain_differences
     for (name, s, a), value in expected.items():
         got = float(h[name]["C"][0, s, a])
         assert abs(got - value) < 1e-5, (name, s, a, got, value)
+
+
+def three_part_tables(learner):
+    h = learner.heads
+    return {
+        "V2": h["Root/Go2/Right"]["V"][0, :, 0],
+        "V3": h["Root/Go3/Right"]["V"][0, :, 0],
+        "C2": h["Root/Go2"]["C"][0, :, 0],
+        "CE2": h["Root/Go2"]["CE"][0, :, 0],
+        "C_root": h["Root"]["C"][0],
+        "CE_root": h["Root"]["CE"][0],
+    }
+
+
+def test_hdr_discounts_by_gamma_to_the_t_and_hands_ce_over_to_the_parents_w():
+    graph, env = per_state_chain()
+    learner = HDRLearner(graph, 1, alpha=ALPHA, gamma=GAMMA)
+    run(graph, env, learner, STEPS, gamma=GAMMA)
+    t = three_part_tables(learner)
+    # episode 1 leaves V(Right, .) = -0.5, -0.5 (Go2) and 5 (Go3 at 2), every C and CE 0;
+    # episode 2:
+    #   C(Go2, 0, Right)  <- .5 * .9 * V(Go2, 1) = .5 * .9 * -.5 = -.225
+    #   CE(Go2, 1, Right) <- .5 * .9 * W(Root, 2), W(Root, 2) = V(Go3, 2) + C + CE = 5
+    #   C(Root, 0, Go2)   <- .5 * .9^2 * V(Root, 2) = .5 * .81 * 5 = 2.025 (two steps)
+    torch.testing.assert_close(t["V2"][:2], torch.tensor([-0.75, -0.75]))
+    assert abs(float(t["V3"][2]) - 7.5) < 1e-6
+    assert abs(float(t["C2"][0]) + 0.225) < 1e-6
+    assert abs(float(t["CE2"][1]) - 2.25) < 1e-6
+    assert abs(float(t["C_root"][0, 0]) - 2.025) < 1e-6
+    assert float(t["CE_root"][0, 0]) == 0.0 and float(t["CE2"][0]) == 0.0
+
+
+def test_har_primitives_learn_average_adjusted_rewards_with_the_gain_of_greedy_steps():
+    graph, env = per_state_chain()
+    learner = HARLearner(graph, 1, alpha=ALPHA)
+    run(graph, env, learner, STEPS)
+    t = three_part_tables(learner)
+    # g after each step (every step greedy): -1, -1, 8/3 | 7/4, 6/5, 16/6; each step's
+    # V(Right, x) <- V + .5 (r - g t - V) uses the gain before the step:
+    #   V(Right@Go2, 0): -.5, then -.5 + .5 (-1 - 8/3 + .5) = -2.0833
+    #   V(Right@Go2, 1): 0 (-1 - (-1)), then .5 (-1 - 7/4) = -1.375
+    #   V(Right@Go3, 2): 5.5, then 5.5 + .5 (10 - 6/5 - 5.5) = 7.15
+    # undiscounted completions: CE(Go2, 1) <- .5 W(Root, 2) = .5 * 5.5; C(Root, 0, Go2) the same
+    assert abs(float(learner.gain[0]) - 16 / 6) < 1e-6
+    torch.testing.assert_close(t["V2"][:2], torch.tensor([-0.5 + 0.5 * (-1 - 8 / 3 + 0.5), -1.375]))
+    assert abs(float(t["V3"][2]) - 7.15) < 1e-5
+    assert abs(float(t["CE2"][1]) - 2.75) < 1e-5
+    assert abs(float(t["C_root"][0, 0]) - 2.75) < 1e-5
