@@ -1,5 +1,5 @@
 """MAXQ-Q, SMDP Q-learning, RAR, HDR and HAR over multi-step children, against their update
-out by hand for one scripted path.
+rules written out by hand for one scripted path.
 
 The four-state chain of ``test_q_lambda_and_hh_exact`` (0 -> 1 -> 2 -> 3, rewards -1, -1, +10):
 the root runs ``Go2`` from 0 (two primitive steps, ending in 2, non-terminal for the root),
