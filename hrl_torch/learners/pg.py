@@ -191,7 +191,7 @@ class HPGRLLearner(Learner):
         for t, name in enumerate(names):
             self.heads[name].bind(self.params, t)
         self.total, self.sentinel = self.params.total, self.params.sentinel
-        self.width = max([h.width for h in heads.values() if h.name in names] + [1])
+        self.width = max([self.heads[n].width for n in names] + [1])
         self.has_gauss = any(self.heads[n].continuous for n in names)
         # heads that share an ``act`` call, and the groups each call serves
         batches: dict[object, list[int]] = {}
