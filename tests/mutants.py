@@ -506,7 +506,7 @@ MUTANTS: list[Mutant] = [
         "        self.done.zero_()\n",
         "",
         "emptying the Task-Stacks keeps rows marked as waiting for a reset",
-        (EXECUTOR,),
+        ("tests/test_executor_flags.py", EXECUTOR),
     ),
     Mutant(
         "policy-heads-scores-dropped",

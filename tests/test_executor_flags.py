@@ -36,3 +36,22 @@ def test_a_greedy_child_of_an_exploratory_choice_is_not_greedy():
         ex.act(ctx, ExploreAtRoot(), 0)
     assert flags == [False, False, False]  # every primitive step lies under the root's choice
     assert torch.equal(ex.stack.greedy[0, :2], torch.tensor([False, False]))
+
+
+def test_starting_again_after_an_episode_end_puts_every_row_at_the_root():
+    # a row whose episode just ended waits for its reset (done); emptying the stacks for a new
+    # start must clear that mark, or the row would never act again
+    from hrl_torch.agent import HierarchicalAgent
+    from hrl_torch.exploration import Greedy
+    from hrl_torch.learners import SMDPQLearner
+    from hrl_torch.rng import BatchRNG
+
+    graph, env = chain()
+    agent = HierarchicalAgent(graph, SMDPQLearner(graph, 1), Greedy(), BatchRNG([0], 1, "x"), 1)
+    action = agent.start(env.reset())
+    for _ in range(3):  # the whole episode: 0 -> 1 -> 2 -> 3
+        action = agent.step(env.step(action))
+    assert bool(agent.executor.stack.done.all()) and int(agent.executor.stack.top[0]) == -1
+    agent.start(env.reset())
+    assert not bool(agent.executor.stack.done.any())
+    assert int(agent.executor.stack.top[0]) == 2  # Root -> Go2 -> Right
