@@ -37,7 +37,10 @@ def load_checkpoint(path: str | Path) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for damaged zip/pickle data
-        raise CheckpointError(f"{path} is corrupt or not a torch checkpoint: {err}") from err
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        if first.startswith("Weights only load failed"):
+            first = "torch.load(weights_only=True) refused it"
+        raise CheckpointError(f"{path} is corrupt or not a torch checkpoint ({first})") from err
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(f"{path} is not an {FORMAT} checkpoint (found {found!r})")

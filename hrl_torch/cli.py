@@ -13,10 +13,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import sys
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
+
+
+class UserError(Exception):
+    """A mistake in the command line: one line on stderr, exit code 2, nothing written."""
 
 
 def _load_domains(project: str) -> None:
@@ -26,42 +31,86 @@ def _load_domains(project: str) -> None:
     try:
         importlib.import_module("agents")
     except ModuleNotFoundError as err:
-        raise SystemExit(
-            f"hrl-torch: no 'agents' package under {path} ({err}); run from the repository root "
+        raise UserError(
+            f"no 'agents' package under {path} ({err}); run from the repository root "
             "or pass --project"
         ) from err
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise UserError(message)
+
+
+def _int_at_least(low: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
+        return value
+
+    return parse
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hrl-torch", description=__doc__.split("\n")[0])
+    parser = _Parser(prog="hrl-torch", description=__doc__.split("\n")[0])
     parser.add_argument("--project", default=".", help="repository root holding agents/ and envs/")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list domains and algorithms")
     train = sub.add_parser("train", help="train every seed of one algorithm as one population")
     train.add_argument("domain")
     train.add_argument("--algo", required=True)
-    train.add_argument("--seeds", type=int, default=5, help="number of seeds (learners)")
-    train.add_argument("--seed-offset", type=int, default=0, help="first seed")
+    positive, natural = _int_at_least(1), _int_at_least(0)
+    train.add_argument("--seeds", type=positive, default=5, help="number of seeds (learners)")
+    train.add_argument("--seed-offset", type=natural, default=0, help="first seed")
     train.add_argument("--backend", default="torch", help="torch (batched) or gymnasium")
-    train.add_argument("--envs-per-seed", type=int, default=None)
-    train.add_argument("--steps", type=int, default=None, help="env steps per seed")
-    train.add_argument("--eval-every", type=int, default=None)
-    train.add_argument("--eval-episodes", type=int, default=None)
-    train.add_argument("--threshold", type=float, default=None)
-    train.add_argument("--checkpoint-every", type=int, default=None)
+    train.add_argument("--envs-per-seed", type=positive, default=None)
+    train.add_argument("--steps", type=positive, default=None, help="env steps per seed")
+    train.add_argument("--eval-every", type=natural, default=None, help="0: only at the end")
+    train.add_argument("--eval-episodes", type=natural, default=None, help="0: no evaluation")
+    train.add_argument("--threshold", type=_finite, default=None)
+    train.add_argument("--checkpoint-every", type=natural, default=None, help="0: at the end")
     train.add_argument("--out", default="runs")
     train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
     train.add_argument("--no-progress", action="store_true")
     train.add_argument("--no-tensorboard", action="store_true")
+    for p in (parser, train):
+        p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``hrl-torch`` command."""
-    args = _parser().parse_args(argv)
+    """Entry point of the ``hrl-torch`` command: user errors are one line and exit code 2."""
+    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    try:
+        return _run(_parser().parse_args(argv))
+    except UserError as err:
+        if debug:
+            raise
+        print(f"hrl-torch: error: {err}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not os.path.isdir(args.project):
+        raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project)
     from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, format_summary, run_experiment
+    from hrl_torch.checkpoint import CheckpointError, load_checkpoint
+    from hrl_torch.experiment import RunOptions, check_choice, format_summary, run_experiment
 
     if args.command == "list":
         for name in registry.names():
@@ -70,7 +119,13 @@ def main(argv: list[str] | None = None) -> int:
             for algo, spec in sorted(domain.algos.items()):
                 print(f"    --algo {algo}: {spec.description}")
         return 0
-    domain = registry.get(args.domain)
+    try:  # every input is checked before anything is written
+        domain = registry.get(args.domain)
+        check_choice(domain, args.algo, args.backend)
+        if args.resume:
+            load_checkpoint(args.resume)
+    except (KeyError, FileNotFoundError, CheckpointError) as err:
+        raise UserError(err.args[0] if err.args else str(err)) from err
     opts = RunOptions(
         seeds=list(range(args.seed_offset, args.seed_offset + args.seeds)),
         backend=args.backend,

@@ -2,8 +2,6 @@
 
 import json
 
-import pytest
-
 from hrl_torch.cli import main
 
 
@@ -69,10 +67,3 @@ def test_train_writes_a_run_folder_and_resumes(tmp_path, capsys):
     )
     resumed = json.loads((run_dir / "summary.json").read_text())
     assert resumed["env_steps_per_learner"] == 1600
-
-
-def test_unknown_domain_and_algorithm_are_clear_errors(tmp_path):
-    with pytest.raises(KeyError, match="unknown domain 'nope'"):
-        main(["train", "nope", "--algo", "x", "--out", str(tmp_path)])
-    with pytest.raises(KeyError, match="no algorithm 'x'"):
-        main(["train", "taxi", "--algo", "x", "--out", str(tmp_path), "--no-progress"])

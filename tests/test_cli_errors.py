@@ -1,0 +1,63 @@
+"""Every user error of the CLI is one line on stderr and exit code 2, and nothing is written."""
+
+import pytest
+
+from hrl_torch.cli import main
+
+BASE = ["train", "taxi", "--algo", "maxq-q", "--no-progress"]
+CASES = {
+    "--seeds 0": "argument --seeds: must be >= 1, got 0",
+    "--seeds -1": "argument --seeds: must be >= 1, got -1",
+    "--steps -5": "argument --steps: must be >= 1, got -5",
+    "--envs-per-seed 0": "argument --envs-per-seed: must be >= 1, got 0",
+    "--eval-every -1": "argument --eval-every: must be >= 0, got -1",
+    "--checkpoint-every -1": "argument --checkpoint-every: must be >= 0, got -1",
+    "--threshold nan": "argument --threshold: must be a finite number, got nan",
+    "--seeds two": "argument --seeds: expected a whole number, got 'two'",
+    "--backend gym": "'taxi' has no backend 'gym'; choose from ('torch', 'gymnasium')",
+}
+
+
+@pytest.mark.parametrize("extra", list(CASES))
+def test_bad_options(extra, tmp_path, capsys):
+    code = main([*BASE, "--out", str(tmp_path / "runs"), *extra.split()])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"hrl-torch: error: {CASES[extra]}"]
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_unknown_domain_and_algorithm(tmp_path, capsys):
+    assert main(["train", "nope", "--algo", "x", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("hrl-torch: error: unknown domain 'nope'; ")
+    assert main(["train", "taxi", "--algo", "x", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert (
+        err
+        == "hrl-torch: error: 'taxi' has no algorithm 'x'; choose from ['maxq-q', 'q', 'smdp-q']"
+    )
+    assert not list(tmp_path.iterdir())
+
+
+def test_missing_and_corrupt_checkpoints(tmp_path, capsys):
+    missing = tmp_path / "nope" / "checkpoint.pt"
+    assert main([*BASE, "--resume", str(missing)]) == 2
+    assert capsys.readouterr().err.strip() == f"hrl-torch: error: no checkpoint at {missing}"
+    assert not (tmp_path / "nope").exists()
+    corrupt = tmp_path / "checkpoint.pt"
+    corrupt.write_bytes(b"not a checkpoint")
+    assert main([*BASE, "--resume", str(corrupt)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is corrupt or not a torch checkpoint" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
+
+
+def test_missing_project_folder(capsys):
+    assert main(["--project", "/nonexistent", "list"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "hrl-torch: error: --project /nonexistent: no such folder"
+    )
+
+
+def test_debug_shows_the_traceback():
+    with pytest.raises(Exception, match="must be >= 1"):
+        main([*BASE, "--seeds", "0", "--debug"])
