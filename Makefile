@@ -35,4 +35,8 @@ mutate: $(STAMP)
 	$(BIN)/python scripts/mutate.py
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV)
+
+# the run folders (kept by `make clean`)
+clean-runs:
+	rm -rf runs

@@ -9,6 +9,7 @@ experiment scripts call.
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -167,10 +168,16 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         executor=spec.executor,
         envs_per_learner=spec.envs_per_learner,
     )
-    logger = RunLogger(run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard)
-    trainer = build_trainer(domain, algo, opts, logger)
-    if opts.resume:
-        trainer.load(opts.resume)
+    made = not opts.resume  # make_run_dir made a fresh folder
+    try:
+        logger = RunLogger(run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard)
+        trainer = build_trainer(domain, algo, opts, logger)
+        if opts.resume:
+            trainer.load(opts.resume)
+    except BaseException:
+        if made:  # a failed start leaves no half-made run folder behind
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
     start = time.perf_counter()
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start

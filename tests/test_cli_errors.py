@@ -61,3 +61,15 @@ def test_missing_project_folder(capsys):
 def test_debug_shows_the_traceback():
     with pytest.raises(Exception, match="must be >= 1"):
         main([*BASE, "--seeds", "0", "--debug"])
+
+
+def test_a_failed_start_removes_the_run_folder_it_made(tmp_path, monkeypatch):
+    import hrl_torch.experiment as experiment
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the env could not be built")
+
+    monkeypatch.setattr(experiment, "build_trainer", broken)
+    with pytest.raises(RuntimeError, match="could not be built"):
+        main([*BASE, "--out", str(tmp_path)])
+    assert not list(tmp_path.iterdir())
