@@ -263,9 +263,7 @@ class HierarchicalExecutor:
         """
         g, s = self.graph, self.stack
         reward = step_td["reward"]
-        if bool(torch.isnan(reward).any()):
-            row = int(torch.isnan(reward).nonzero()[0])
-            raise ValueError(f"the env returned a NaN reward (env row {row})")
+        _check_step(reward, step_td["duration"])
         real = ~step_td["is_init"]
         env_term = step_td["terminated"] & real
         env_trunc = step_td["truncated"] & real & ~env_term
@@ -431,6 +429,18 @@ class HierarchicalExecutor:
         self._action = state["action"].to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
+    """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN)."""
+    bad = ~(torch.isfinite(reward) & torch.isfinite(duration) & (duration >= 0))
+    if bool(bad.any()):
+        row = int(bad.nonzero()[0])
+        r, t = float(reward[row]), float(duration[row])
+        raise ValueError(
+            f"env row {row} returned reward {r} and duration {t}: rewards must be finite, "
+            "durations finite and >= 0"
+        )
 
 
 def _check_available(g: TaskGraph, need, available, node) -> None:

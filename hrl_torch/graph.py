@@ -514,7 +514,7 @@ class TaskGraph(nn.Module):
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         abstract = self._node_columns(
-            self._abstract_nodes, torch.long, 0, b, device, lambda k: self.nodes[k].abstract(obs)
+            self._abstract_nodes, torch.long, 0, b, device, lambda k: self._abstract_of(obs, k)
         )
         if self.check_ranges:
             bad = (abstract < 0) | (abstract >= self.node_n_states)
@@ -565,6 +565,16 @@ class TaskGraph(nn.Module):
             values = torch.stack([value_of(k).to(dtype) for k in nodes[0]], dim=1)
             out.index_copy_(1, nodes[2].to(device), values)
         return out
+
+    def _abstract_of(self, obs: TensorDict, k: int) -> torch.Tensor:
+        """Node ``k``'s abstract states; floats are an error, not silently truncated."""
+        value = self.nodes[k].abstract(obs)
+        if self.check_ranges and value.is_floating_point():
+            raise GraphError(
+                f"{self.names[k]!r}.abstract returned {value.dtype} values; abstract states are "
+                "integer indices (return a long tensor)"
+            )
+        return value
 
     def _call(self, method, obs: TensorDict, memory: torch.Tensor | None, k: int):
         """``method(obs)``, or ``method(obs, memory of node k)`` for a memory node."""

@@ -540,6 +540,22 @@ MUTANTS: list[Mutant] = [
         "a finished run resumed has no result (its latest evaluation was not saved)",
         ("tests/test_checkpoint.py",),
     ),
+    Mutant(
+        "executor-durations-unchecked",
+        "hrl_torch/executor.py",
+        "bad = ~(torch.isfinite(reward) & torch.isfinite(duration) & (duration >= 0))",
+        "bad = ~torch.isfinite(reward)",
+        "NaN and negative durations reach the tables",
+        ("tests/test_bad_input.py",),
+    ),
+    Mutant(
+        "step-size-upper-bound-unchecked",
+        "hrl_torch/validate.py",
+        "ok = math.isfinite(v) and (v > low if open_low else v >= low) and v <= high",
+        "ok = math.isfinite(v) and (v > low if open_low else v >= low)",
+        "step sizes and discounts above 1 are accepted",
+        ("tests/test_bad_input.py",),
+    ),
     # ---------------------------------------------------------------- domain envs
     Mutant(
         "taxi-fuel-double-burn",

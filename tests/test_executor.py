@@ -168,5 +168,5 @@ def test_nan_reward_is_a_clear_error():
     graph = random_hierarchy(2, 4, 2, 0)
     env = random_table_env(4, 2, 0, terminal_frac=0.0)
     env.reward_table[:] = float("nan")
-    with pytest.raises(ValueError, match="NaN reward"):
+    with pytest.raises(ValueError, match="returned reward nan and duration"):
         run_checked(graph, env, 3, lambda *a: None)

@@ -23,6 +23,7 @@ from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import columns, lookup
 from hrl_torch.rng import BatchRNG
 from hrl_torch.tables import TableBank, TableLayout
+from hrl_torch.validate import check_fraction, check_step_size
 
 
 class Learner(nn.Module):
@@ -80,6 +81,8 @@ class TabularLearner(Learner):
         per_instance: bool = False,
     ) -> None:
         super().__init__(graph, n_learners)
+        check_step_size(self, "alpha", alpha)
+        check_fraction(self, "gamma", gamma)
         self.alpha = as_schedule(alpha)
         self.gamma = float(gamma)
         self.layout = TableLayout(graph, per_instance)

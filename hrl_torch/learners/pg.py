@@ -52,6 +52,7 @@ from hrl_torch.ops import lookup
 from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
 from hrl_torch.tables import TableBank
 from hrl_torch.tiles import TileCoder
+from hrl_torch.validate import check_fraction, check_positive, check_step_size
 
 FeatureReward = Callable[[torch.Tensor], torch.Tensor]
 
@@ -136,6 +137,8 @@ class HPGRLLearner(Learner):
     ) -> None:
         super().__init__(graph, n_learners)
         self.config = cfg = config or PGConfig()
+        check_positive(self, "alpha", cfg.alpha)
+        check_fraction(self, "beta", cfg.beta)
         self.alpha = as_schedule(cfg.alpha)
         if nodes is None:
             nodes = [graph.names[k] for k in graph.subtasks()]
@@ -508,6 +511,7 @@ class ActorCriticLearner(HPGRLLearner):
         if not self.has_gauss:
             raise GraphError("ActorCriticLearner needs a root with one continuous child")
         self.actor = self.heads[graph.root_name]
+        check_step_size(self, "critic_alpha", critic_alpha)
         self.critic_alpha = as_schedule(critic_alpha)
         self.critics = nn.ModuleDict(
             {graph.root_name: TileValueHead(graph.root_name, critic_coder, n_learners)}

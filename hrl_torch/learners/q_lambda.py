@@ -39,6 +39,7 @@ from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
 from hrl_torch.ops import lookup
 from hrl_torch.tables import TableBank
+from hrl_torch.validate import check_fraction
 
 
 class QLambdaLearner(TabularLearner):
@@ -74,6 +75,7 @@ class QLambdaLearner(TabularLearner):
         n_states = torch.where(value_node[lay.table_node], lay.table_n_states, 0)
         self.Q = TableBank(n_learners, n_states, lay.table_n_children.clamp_min(1), init)
         self.attach_heads(Q=self.Q)
+        check_fraction(self, "lam", lam)
         self.lam = float(lam)
         self.trace_len = int(trace_len)
         self.register_buffer("value_node", value_node, persistent=False)

@@ -1,0 +1,46 @@
+"""Hyperparameter checks at construction: a clear error instead of tables full of NaN."""
+
+from __future__ import annotations
+
+import math
+
+from hrl_torch.exploration import Constant, Exponential, Linear, Schedule
+
+
+def schedule_values(value: float | Schedule) -> list[float]:
+    """The values a number or schedule can take at its ends (what a range check needs)."""
+    if isinstance(value, Constant):
+        return [value.value]
+    if isinstance(value, Linear):
+        return [value.start, value.end]
+    if isinstance(value, Exponential):
+        return [value.start, max(value.minimum, 0.0)] if value.decay <= 1 else [math.inf]
+    return [float(value)]
+
+
+def check_range(owner: object, name: str, value, low: float, high: float, open_low: bool) -> None:
+    """Raise ``ValueError`` unless every end value of ``value`` lies in the range."""
+    for v in schedule_values(value):
+        ok = math.isfinite(v) and (v > low if open_low else v >= low) and v <= high
+        if not ok:
+            bracket = "(" if open_low else "["
+            raise ValueError(
+                f"{type(owner).__name__}: {name} must be in {bracket}{low:g}, {high:g}], got {v}"
+            )
+
+
+def check_step_size(owner: object, name: str, value) -> None:
+    """A TD step size: in ``(0, 1]``."""
+    check_range(owner, name, value, 0.0, 1.0, open_low=True)
+
+
+def check_fraction(owner: object, name: str, value) -> None:
+    """A discount or trace decay: in ``[0, 1]``."""
+    check_range(owner, name, value, 0.0, 1.0, open_low=False)
+
+
+def check_positive(owner: object, name: str, value) -> None:
+    """A gradient step size: finite and ``> 0``."""
+    for v in schedule_values(value):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{type(owner).__name__}: {name} must be > 0 and finite, got {v}")
