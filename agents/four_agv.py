@@ -1,0 +1,452 @@
+"""The four-AGV task graph of Figure 6.3 and the AGV dispatching rules of Figure 6.7.
+
+Task graph (one copy per agent; each agent row of ``FourAGVEnv.agent_rows`` is its
+observation)::
+
+    Root ─┬─ DM_i ─┬─ Nav_W_i ─┐                     i = 1..4: deliver material to Mi
+          │        ├─ Nav_D_i ─┤
+          │        └─ Load, Unload, Idle
+          ├─ DA_i ─┬─ Nav_P_i ─┼─ Forward, Left, Right
+          │        ├─ Nav_WA ──┘                     (Nav_WA shared by DA_1..4)
+          │        └─ Load, Unload                   i = 1..4: deliver assembly from Mi
+          └─ Idle
+
+``Nav_t`` is one subtask per target location ``t`` (13 of them). The status binds the
+children: an empty AGV may only call ``Nav_W_i``/``Nav_P_i`` and ``Load``, a loaded one only
+``Nav_D_i``/``Nav_WA`` and ``Unload`` (``child_mask``). ``DM_i`` also has ``Idle``, available
+only while the AGV carries part ``i`` and ``Di`` is full: with several AGVs a buffer can fill
+while an AGV is on its way (the "wait for a long time" of Section 6.4), and without a way to
+wait the AGV could only repeat failing 1 ms unloads. The root is the cooperative subtask of
+Cooperative HRL (Section 6.4): its children ``DM_1..4, DA_1..4`` (and ``Idle``) form ``U_1``;
+the learner, not the graph, adds the other agents' current ``U_1`` actions to its tables.
+
+State abstractions (buffer capacity ``c``; the text's counts are for ``c = 3``):
+
+=========  ===========================================================  ===================
+node       relevant variables                                           states (c = 3)
+=========  ===========================================================  ===================
+Root       one bit per ``DM_i`` / ``DA_i``: can it start now             2**8 = 256
+DM_i       location, status, drop_off_i, warehouse_i                    100 x 9 x 4 x 2 = 7,200
+DA_i       location, status, pick_up_i                                  100 x 9 x 4 = 3,600
+Nav_t      location                                                     100
+Unload     location, status (its reward depends on them)                900
+others     none                                                         1
+=========  ===========================================================  ===================
+
+The text does not give the root's abstraction. Its decisions are made with an empty AGV (DM/DA
+end on a delivery, or when the job is gone, with the AGV empty), so the status is constant
+there; and with 1 ms moves the AGV's location hardly matters for which job to take next (with
+the 2 s moves of Figure 6.5 it does: adding it multiplies the root's states by 100). What
+matters is which jobs can start: ``DM_i`` when part ``i`` waits and ``Di`` has room, ``DA_i``
+when ``Pi`` holds an assembly, i.e. the initiation sets of the eight children. The root's
+table is then 256 states x 9 children per agent, and Cooperative HRL's joint table with the
+other three agents' ``U_1`` actions (9 values each, ``Idle`` included) 256 x 9**3 x 9 =
+1,679,616 entries: small enough for a population of learners. (The full buffer state, as the
+root of ``agents/agv.py`` uses, would be ``100 x 4**8 x 2**4``, about 10**8 states.)
+
+Initiation and termination (``delivery`` is what the agent's last action delivered):
+
+* ``DM_i``: initiable when the AGV is empty, part ``i`` waits in the warehouse and ``Di`` has
+  room, or when it carries part ``i``; terminates when part ``i`` is delivered into ``Di``
+  (``delivery == i``), when the AGV carries anything else, or when it is empty and part ``i`` is
+  gone or ``Di`` is full (another AGV got there first).
+* ``DA_i``: initiable when the AGV is empty and ``Pi`` holds an assembly, or when it carries
+  assembly ``i``; terminates when assembly ``i`` is delivered (``delivery == 4 + i``), when the
+  AGV carries anything else, or when it is empty and ``Pi`` is empty.
+* ``Nav_t``: terminates at ``t``.
+
+``DM_i`` and ``DA_i`` are *event-terminated* (``event_termination``): a delivery ends the
+running invocation but does not make the subtask unavailable where ``delivery`` still shows it,
+so the root may start the same job again at once (unlike ``agents/agv.py``, whose root must
+pick another child first). Their other terminal states are outside their initiation sets, so
+they stay unavailable there.
+
+``flat_graph`` is the flat alternative (one root over the primitives on the agent's flat
+state) for the flat Q-learner of Figure 6.6. The dispatching rules of Figure 6.7 are batched
+rule policies over the agent rows: ``FirstComeFirstServe``, ``HighestQueueFirst`` and
+``NearestStationFirst`` (see ``DispatchRule``).
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+from torch.nn.functional import one_hot
+
+from envs.four_agv import (
+    BAYS,
+    CAPACITY,
+    DROP_OFF,
+    EMPTY,
+    FORWARD,
+    IDLE,
+    LEFT,
+    LOAD,
+    N_ACTIONS,
+    N_LOCATIONS,
+    N_STATIONS,
+    N_STATUS,
+    PICK_UP,
+    RIGHT,
+    UNLOAD,
+    WAREHOUSE_DROP,
+    n_flat_states,
+    shortest_paths,
+)
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+
+N_JOBS = 2 * N_STATIONS  # DM_1..4, DA_1..4
+ROOT_STATES = 2**N_JOBS
+NAV_STATES = N_LOCATIONS
+NAV_TARGETS = {
+    **{f"W_{i + 1}": BAYS[i] for i in range(N_STATIONS)},
+    **{f"D_{i + 1}": DROP_OFF[i] for i in range(N_STATIONS)},
+    **{f"P_{i + 1}": PICK_UP[i] for i in range(N_STATIONS)},
+    "WA": WAREHOUSE_DROP,
+}
+
+
+def dm_states(capacity: int = CAPACITY) -> int:
+    """Abstract states of ``DM_i``: ``100 x 9 x (c + 1) x 2`` (7,200 for ``c = 3``)."""
+    return N_LOCATIONS * N_STATUS * (capacity + 1) * 2
+
+
+def da_states(capacity: int = CAPACITY) -> int:
+    """Abstract states of ``DA_i``: ``100 x 9 x (c + 1)`` (3,600 for ``c = 3``)."""
+    return N_LOCATIONS * N_STATUS * (capacity + 1)
+
+
+class Navigate(Subtask):
+    """``Nav_t``: drive to location ``t`` with the moves; abstraction: location."""
+
+    def __init__(self, target: str) -> None:
+        super().__init__(f"Nav_{target}", ["Forward", "Left", "Right"], n_states=NAV_STATES)
+        self.target = NAV_TARGETS[target]
+
+    def abstract(self, obs: TensorDict) -> torch.Tensor:
+        """The AGV's location."""
+        return obs["location"]
+
+    def terminated(self, obs: TensorDict) -> torch.Tensor:
+        """At the target."""
+        return obs["location"] == self.target
+
+
+def _stack(obs: TensorDict, name: str) -> torch.Tensor:
+    """``[B, 4]``: the fields ``name_1 .. name_4``."""
+    return torch.stack([obs[f"{name}_{k}"] for k in range(1, N_STATIONS + 1)], -1)
+
+
+def job_available(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
+    """``[B, 8]`` bool: which of ``DM_1..4, DA_1..4`` an empty AGV can start now."""
+    material = (_stack(obs, "warehouse") > 0) & (_stack(obs, "drop_off") < capacity)
+    return torch.cat([material, _stack(obs, "pick_up") > 0], -1)
+
+
+def root_abstract(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
+    """Root state: bit ``k`` says job ``k`` (``DM_1..4, DA_1..4``) can start; in ``[0, 256)``."""
+    weights = 2 ** torch.arange(N_JOBS, device=obs.device)
+    return (job_available(obs, capacity).long() * weights).sum(-1)
+
+
+def _deliver_material(i: int, capacity: int) -> Subtask:
+    """``DM_i`` (``i`` 0-based): load part ``i`` at its bay, unload it at ``Di``."""
+    k = i + 1
+    d, w = f"drop_off_{k}", f"warehouse_{k}"
+    levels = capacity + 1
+
+    def abstract(o):
+        return ((o["location"] * N_STATUS + o["status"]) * levels + o[d]) * 2 + o[w]
+
+    def initiable(o):
+        s = o["status"]
+        return ((s == EMPTY) & (o[w] > 0) & (o[d] < capacity)) | (s == k)
+
+    def terminated(o):
+        s = o["status"]
+        gone = (s == EMPTY) & ((o[w] == 0) | (o[d] >= capacity))
+        return (o["delivery"] == k) | ((s != EMPTY) & (s != k)) | gone
+
+    def child_mask(o):
+        empty, full = o["status"] == EMPTY, o[d] >= capacity
+        return torch.stack([empty, empty, ~empty, ~empty, ~empty & full], -1)
+
+    return Subtask(
+        f"DM_{k}",
+        [f"Nav_W_{k}", "Load", f"Nav_D_{k}", "Unload", "Idle"],
+        n_states=dm_states(capacity),
+        abstract=abstract,
+        initiable=initiable,
+        terminated=terminated,
+        child_mask=child_mask,
+        event_termination=True,
+    )
+
+
+def _deliver_assembly(i: int, capacity: int) -> Subtask:
+    """``DA_i`` (``i`` 0-based): load assembly ``i`` at ``Pi``, unload it at ``WA``."""
+    k, asm = i + 1, N_STATIONS + i + 1
+    p = f"pick_up_{k}"
+
+    def abstract(o):
+        return (o["location"] * N_STATUS + o["status"]) * (capacity + 1) + o[p]
+
+    def initiable(o):
+        s = o["status"]
+        return ((s == EMPTY) & (o[p] > 0)) | (s == asm)
+
+    def terminated(o):
+        s = o["status"]
+        gone = (s == EMPTY) & (o[p] == 0)
+        return (o["delivery"] == asm) | ((s != EMPTY) & (s != asm)) | gone
+
+    def child_mask(o):
+        empty = o["status"] == EMPTY
+        return torch.stack([empty, empty, ~empty, ~empty], -1)
+
+    return Subtask(
+        f"DA_{k}",
+        [f"Nav_P_{k}", "Load", "Nav_WA", "Unload"],
+        n_states=da_states(capacity),
+        abstract=abstract,
+        initiable=initiable,
+        terminated=terminated,
+        child_mask=child_mask,
+        event_termination=True,
+    )
+
+
+def primitives() -> list[Primitive]:
+    """The six primitive actions; only ``Unload``'s reward depends on the state."""
+    return [
+        Primitive("Forward", FORWARD),
+        Primitive("Left", LEFT),
+        Primitive("Right", RIGHT),
+        Primitive("Load", LOAD),
+        Primitive(
+            "Unload",
+            UNLOAD,
+            N_LOCATIONS * N_STATUS,
+            lambda o: o["location"] * N_STATUS + o["status"],
+        ),
+        Primitive("Idle", IDLE),
+    ]
+
+
+def four_agv_hierarchy(capacity: int = CAPACITY) -> TaskGraph:
+    """The task graph of Figure 6.3 with the abstractions of the module docstring.
+
+    Args:
+        capacity: the env's buffer capacity (3 in the text, 1 for Figure 6.6).
+    """
+    dm = [_deliver_material(i, capacity) for i in range(N_STATIONS)]
+    da = [_deliver_assembly(i, capacity) for i in range(N_STATIONS)]
+    navs = [Navigate(t) for t in NAV_TARGETS]
+    root = Subtask(
+        "Root",
+        [*(x.name for x in dm + da), "Idle"],
+        n_states=ROOT_STATES,
+        abstract=lambda o: root_abstract(o, capacity),
+    )
+    return TaskGraph("Root", [root, *dm, *da, *navs, *primitives()], n_actions=N_ACTIONS)
+
+
+def flat_graph(capacity: int = 1) -> TaskGraph:
+    """One root over the primitives on the agent's flat state (the flat Q-learner, Figure 6.6).
+
+    The abstraction is the env's per-agent ``observation``: ``100 x 9 x (c + 1)**8 x 2**4``
+    states, 3,686,400 with the capacity 1 of Figure 6.6 (943,718,400 with 3: too many for a
+    table).
+    """
+    root = Subtask(
+        "Root",
+        [p.name for p in primitives()],
+        n_states=n_flat_states(capacity),
+        abstract=lambda o: o["observation"],
+    )
+    return TaskGraph("Root", [root, *primitives()], n_actions=N_ACTIONS)
+
+
+# ---------------------------------------------------------------------- dispatching (Fig. 6.7)
+NO_JOB = -1
+
+
+class DispatchRule:
+    """A centralised AGV dispatcher: one rule policy for every agent row of a batch.
+
+    A *job* is one of ``DM_1..4`` (fetch part ``i`` at ``Wi``, unload it at ``Di``) or
+    ``DA_1..4`` (fetch an assembly at ``Pi``, unload it at ``WA``). Each call:
+
+    1. forgets the jobs of rows that were reset, of agents that now carry something (the fetch
+       is done: the load decides where to go) and of jobs with nothing left to fetch;
+    2. gives every *free* acting agent (empty, no job), in agent order, the best open job by the
+       rule's keys (``keys``). A job is open while it has unclaimed items (``DM_i``: the part
+       in ``Wi``; ``DA_i``: the assemblies in ``Pi``) and, for ``DM_i``, room left in ``Di``
+       after the parts on AGVs and the claimed ones: a claimed slot stays reserved, so a
+       fetched part can always be unloaded and no two AGVs race for one item;
+    3. drives every agent by the shortest path: an empty AGV with a job to the job's load
+       location and ``Load``; a loaded one to ``Di`` (part ``i``) or ``WA`` (assembly) and
+       ``Unload`` (``Idle`` while ``Di`` is full); an empty AGV without a job waits (``Idle``).
+
+    The only memory is ``job`` ``[B, n]`` (``NO_JOB`` or the job an empty AGV is fetching).
+    Every action is one that applies (a real move, a load that finds its item, an unload that
+    has room) or ``Idle``.
+
+    Args:
+        batch_size: env rows ``B``.
+        n_agents: agents per row ``n``; calls take ``B * n`` agent rows.
+        capacity: the env's buffer capacity.
+        device: where the memory lives.
+    """
+
+    name = "dispatch"
+
+    def __init__(
+        self,
+        batch_size: int,
+        n_agents: int,
+        capacity: int = CAPACITY,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        self.device = torch.device(device)
+        self.capacity = int(capacity)
+        self.job = torch.full((batch_size, n_agents), NO_JOB, dtype=torch.long, device=self.device)
+        dist, first = shortest_paths()
+        self.dist, self.first = dist.to(self.device), first.to(self.device)
+        as_long = dict(dtype=torch.long, device=self.device)
+        self.load_at = torch.tensor([*BAYS, *PICK_UP], **as_long)  # [8]
+        # where a loaded AGV goes, by status: part i to Di, any assembly to WA
+        self.deliver_at = torch.tensor(
+            [WAREHOUSE_DROP, *DROP_OFF, *([WAREHOUSE_DROP] * N_STATIONS)], **as_long
+        )
+
+    def reset(self) -> None:
+        """Forget every job."""
+        self.job.fill_(NO_JOB)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The per-agent memory."""
+        return {"job": self.job.clone()}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore ``state_dict``."""
+        self.job = state["job"].to(self.device).clone()
+
+    def keys(
+        self, queue: torch.Tensor, age: torch.Tensor, distance: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The rule: ``(primary, tie-break)`` keys ``[B, 8]`` of the jobs, highest wins.
+
+        Args:
+            queue: unclaimed items waiting at each job's load location ``[B, 8]``.
+            age: how long the oldest unclaimed item has waited ``[B, 8]`` (s).
+            distance: moves from the agent to each job's load location ``[B, 8]``.
+        """
+        raise NotImplementedError
+
+    def __call__(self, td: TensorDict) -> torch.Tensor:
+        """Primitive actions ``[B * n]`` for the agent rows ``td`` (``FourAGVEnv.agent_rows``)."""
+        b, n = self.job.shape
+        cap = self.capacity
+
+        def per_agent(key: str) -> torch.Tensor:
+            return td[key].view(b, n)
+
+        def shared(key: str) -> torch.Tensor:
+            value = td[key]
+            return value.view(b, n, *value.shape[1:])[:, 0]
+
+        loc, status, acting = per_agent("location"), per_agent("status"), per_agent("acting")
+        drop = torch.stack([shared(f"drop_off_{k}") for k in range(1, N_STATIONS + 1)], -1)
+        pick = torch.stack([shared(f"pick_up_{k}") for k in range(1, N_STATIONS + 1)], -1)
+        bays = torch.stack([shared(f"warehouse_{k}") for k in range(1, N_STATIONS + 1)], -1)
+        waiting = torch.cat([bays, pick], -1)  # [B, 8] items at the load locations
+        pick_age = shared("pick_up_age")  # [B, 4, c]
+        bay_age = shared("bay_age")  # [B, 4]
+
+        # 1. forget finished, reset and stale jobs
+        empty = status == EMPTY
+        job = torch.where(shared("is_init")[:, None] | ~empty, NO_JOB, self.job)
+        left_at_job = waiting.gather(1, job.clamp_min(0))
+        job = torch.where((job >= 0) & (left_at_job == 0), NO_JOB, job)
+        part_on_board = (status >= 1) & (status <= N_STATIONS)
+        carried = (
+            one_hot(torch.where(part_on_board, status - 1, 0), N_STATIONS)
+            * part_on_board[..., None]
+        )
+        reserved = drop + carried.sum(1)  # [B, 4] Di slots taken or promised to carried parts
+
+        # 2. free acting agents take the best open job, one agent after the other
+        for j in range(n):
+            claims = (one_hot(job + 1, N_JOBS + 1)[..., 1:]).sum(1)  # [B, 8]
+            queue = waiting - claims
+            room = cap - reserved - claims[:, :N_STATIONS]
+            open_ = (queue > 0) & torch.cat([room > 0, torch.ones_like(room, dtype=torch.bool)], -1)
+            next_item = claims[:, N_STATIONS:].clamp_max(cap - 1)[..., None]
+            age = torch.cat([bay_age, pick_age.gather(2, next_item).squeeze(2)], -1)
+            distance = self.dist[loc[:, j]][:, self.load_at]
+            primary, second = self.keys(queue.float(), age, distance.float())
+            best = _lexicographic_argmax(open_, primary, second)
+            free = acting[:, j] & empty[:, j] & (job[:, j] == NO_JOB)
+            job[:, j] = torch.where(free, best, job[:, j])
+        self.job = job
+
+        # 3. drive: shortest path to the target, then load / unload (or wait)
+        target = torch.where(empty, self.load_at[job.clamp_min(0)], self.deliver_at[status])
+        room_at_drop = drop.gather(1, (status - 1).clamp(0, N_STATIONS - 1)) < cap
+        here = torch.where(empty, LOAD, torch.where(part_on_board & ~room_at_drop, IDLE, UNLOAD))
+        action = torch.where(loc == target, here, self.first[loc, target])
+        action = torch.where(empty & (job == NO_JOB), IDLE, action)
+        return action.reshape(-1)
+
+
+def _lexicographic_argmax(
+    allowed: torch.Tensor, primary: torch.Tensor, second: torch.Tensor
+) -> torch.Tensor:
+    """``[B]``: the allowed column with the highest ``primary`` (ties: ``second``, then index).
+
+    ``NO_JOB`` where nothing is allowed.
+    """
+    low = torch.finfo(primary.dtype).min
+    primary = torch.where(allowed, primary, low)
+    top = allowed & (primary == primary.max(-1, keepdim=True).values)
+    best = torch.where(top, second, low).argmax(-1)
+    return torch.where(allowed.any(-1), best, NO_JOB)
+
+
+class FirstComeFirstServe(DispatchRule):
+    """Serve the request that has waited longest (ties: the nearest, then the lowest job)."""
+
+    name = "first come first serve"
+
+    def keys(self, queue, age, distance):
+        return age, -distance
+
+
+class HighestQueueFirst(DispatchRule):
+    """Serve the station with the most unclaimed items waiting (ties: the nearest).
+
+    A bay's queue is its waiting part (0/1), a pick-up station's its assemblies (0..c): full
+    output buffers, which block their machines, go first.
+    """
+
+    name = "highest queue first"
+
+    def keys(self, queue, age, distance):
+        return queue, -distance
+
+
+class NearestStationFirst(DispatchRule):
+    """Serve the closest station with an open request (ties: the one that waited longest)."""
+
+    name = "nearest station first"
+
+    def keys(self, queue, age, distance):
+        return -distance, age
+
+
+DISPATCH_RULES = {
+    "fcfs": FirstComeFirstServe,
+    "hqf": HighestQueueFirst,
+    "nsf": NearestStationFirst,
+}
