@@ -1,0 +1,156 @@
+"""Task graphs of the multi-robot trash collection task (Figures 6.1 and 6.9), for one robot.
+
+Every robot runs its own copy of a graph on its agent row of ``TrashEnv.agent_rows``: its own
+fields (``location``, ``carrying``, ``dumped``, ``last_action``) and the shared ones (``cans``,
+``t1_full``, ``t2_full``). Task graph of Figure 6.1::
+
+    Root ─┬─ CollectT1 ─┬─ NavT1 ──── North, South, East, West
+          │             ├─ NavDump ── North, South, East, West
+          │             ├─ Pick
+          │             └─ Put
+          ├─ CollectT2 ─┬─ NavT2, NavDump, Pick, Put
+          └─ Wait
+
+``Wait`` (idle) is a child of ``Root``: the choice of a robot when no can holds trash (both
+Collect subtasks are then terminal, so without it ``Root`` would have nothing to choose) and the
+action of a robot that waits for its teammates under tau_all. The text's
+``U_1 = {collect trash at T1, collect trash at T2}`` thus becomes ``U_1 = {CollectT1,
+CollectT2, Wait}`` here. ``NavDump`` is shared by both Collect subtasks (subtask sharing,
+Section 3.1).
+
+Communication version (Figure 6.9), one level below the cooperative ``Root``::
+
+    Root ─┬─ Com ────┬─ CollectT1, CollectT2, Wait     (the same subtasks under both)
+          └─ NotCom ─┘
+
+Termination: ``CollectTk`` ends where the robot is empty and can ``Tk`` is empty: after its load
+is dumped, or when another robot emptied ``Tk`` first. A can refilled while the robot carried
+its load keeps the subtask going (it collects at ``Tk`` until ``Tk`` is clear). ``NavX`` ends at
+``X``; ``Root`` never ends (the task is continuing). ``Com`` and ``NotCom`` stand for one
+decision at ``Root`` (Section 6.5.2), so they should end when their child ends; no state
+predicate says "my child ended", so they end on the agent row's *events*: ``dumped`` (this
+robot's put, the normal end of a Collect subtask) or ``last_action == WAIT`` (a Wait step). When
+a Collect subtask ends because another robot took the trash first, ``Com`` / ``NotCom`` stay on
+the stack and choose again without a new communication decision; a Collect subtask that would
+go on after its dump (its can refilled meanwhile) is cut there, with its parent.
+
+State abstractions (the robot's own variables and the cans, Section 3.1: the cans are
+irrelevant while navigating):
+
+=============  ===============================================  ======
+node           relevant variables                               states
+=============  ===============================================  ======
+Root           location, carrying, both cans (``own_state``)    96
+Com, NotCom    as Root                                          96
+CollectTk      location, carrying, can Tk                       48
+NavT1/T2/Dump  location                                         12
+moves, Pick    none (own reward always -1)                      1
+Put            location, carrying                               24
+Wait           none (own reward 0)                              1
+=============  ===============================================  ======
+
+The primitives' tables hold the team reward, which also carries the other robots' dumps; the
+abstraction keeps only what the robot's own action changes.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from envs.trash import (
+    CANS,
+    DUMP,
+    N_ACTIONS,
+    N_CELLS,
+    N_OWN_STATES,
+    N_ROBOT_CODES,
+    PICK,
+    PUT,
+    WAIT,
+)
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+
+MOVE_NAMES = ["North", "South", "East", "West"]
+#: the children of the cooperative Root (Figure 6.1) or of Com / NotCom (Figure 6.9)
+U1 = ("CollectT1", "CollectT2", "Wait")
+ROOT_STATES = N_OWN_STATES  # 96
+COLLECT_STATES = N_ROBOT_CODES * 2  # 48
+
+
+def _robot(obs: TensorDict) -> torch.Tensor:
+    """``location * 2 + carrying`` of the agent row."""
+    return obs["location"] * 2 + obs["carrying"]
+
+
+def _navigate(name: str, cell: int) -> Subtask:
+    """Navigate to ``cell``; abstraction: location."""
+    return Subtask(
+        name,
+        MOVE_NAMES,
+        n_states=N_CELLS,
+        abstract=lambda o: o["location"],
+        terminated=lambda o: o["location"] == cell,
+    )
+
+
+def _collect(k: int) -> Subtask:
+    """Collect trash at ``T(k+1)``: navigate there, pick, navigate to the Dump, put."""
+    full = f"t{k + 1}_full"
+    return Subtask(
+        f"CollectT{k + 1}",
+        [f"NavT{k + 1}", "NavDump", "Pick", "Put"],
+        n_states=COLLECT_STATES,
+        abstract=lambda o: _robot(o) * 2 + o[full],
+        terminated=lambda o: (o["carrying"] == 0) & (o[full] == 0),
+    )
+
+
+def _root_state(obs: TensorDict) -> torch.Tensor:
+    return obs["own_state"]
+
+
+def _collection_nodes() -> list[Subtask | Primitive]:
+    """Everything below the U_1 level: the Collect and Nav subtasks and the primitives."""
+    return [
+        _collect(0),
+        _collect(1),
+        _navigate("NavT1", CANS[0]),
+        _navigate("NavT2", CANS[1]),
+        _navigate("NavDump", DUMP),
+        Primitive("South", 0),
+        Primitive("North", 1),
+        Primitive("East", 2),
+        Primitive("West", 3),
+        Primitive("Pick", PICK),
+        Primitive("Put", PUT, N_ROBOT_CODES, _robot),
+        Primitive("Wait", WAIT),
+    ]
+
+
+def trash_hierarchy() -> TaskGraph:
+    """The task graph of Figure 6.1 for one robot (``Root`` is the cooperative subtask)."""
+    root = Subtask("Root", U1, n_states=ROOT_STATES, abstract=_root_state)
+    return TaskGraph("Root", [root, *_collection_nodes()], n_actions=N_ACTIONS)
+
+
+def _one_decision(obs: TensorDict) -> torch.Tensor:
+    """Events that end the U_1 child of Com / NotCom: a dump or a Wait step."""
+    return (obs["dumped"] == 1) | (obs["last_action"] == WAIT)
+
+
+def trash_com_hierarchy() -> TaskGraph:
+    """The task graph of Figure 6.9: Root -> Com, NotCom -> U_1 (shared subtasks)."""
+    root = Subtask("Root", ["Com", "NotCom"], n_states=ROOT_STATES, abstract=_root_state)
+    levels = [
+        Subtask(
+            name,
+            U1,
+            n_states=ROOT_STATES,
+            abstract=_root_state,
+            terminated=_one_decision,
+            event_termination=True,
+        )
+        for name in ("Com", "NotCom")
+    ]
+    return TaskGraph("Root", [root, *levels, *_collection_nodes()], n_actions=N_ACTIONS)

@@ -1,0 +1,233 @@
+"""Task graphs of the multi-taxi domain (Section 6.6, Figure 6.10) for one taxi, and their sizes.
+
+Every taxi runs its own copy of a graph on its agent row of ``TwoTaxiEnv.agent_rows``: its own
+fields (``taxi_loc``, ``status``, ``picked_up``, ``delivered``, ``last_action``) and the shared
+station statuses (``stations``, ``waiting_R`` ... ``waiting_B``). Task graph of Figure 6.10::
+
+    Root ─┬─ GetB, GetG, GetR, GetY ─┬─ Navigate(s) ── North, South, East, West
+          │                          └─ Pickup
+          ├─ Wait
+          └─ Put ─┬─ Navigate(R), Navigate(G), Navigate(Y), Navigate(B)
+                  └─ Putdown
+
+``Get_s`` calls ``Navigate(s)`` for its own station; ``Put``'s mask allows only the
+``Navigate(t)`` of the carried passenger's destination (``agents.taxi.Navigate``, shared by Get
+and Put as in Dietterich's taxi). ``Root`` is the cooperative subtask and
+``U_1 = {GetB, GetG, GetR, GetY, Wait, Put}``. COM version (the communication level)::
+
+    Root ─┬─ Com ────┬─ GetB, GetG, GetR, GetY, Wait, Put   (the same subtasks under both)
+          └─ NotCom ─┘
+
+Termination: ``Get_s`` ends when the taxi carries a passenger or station ``s`` has none (another
+taxi took it); ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``; ``Root`` never (the
+task is continuing). ``Com`` / ``NotCom`` stand for one decision and end on the agent row's
+events that end their child: ``picked_up`` (a Get succeeded), ``delivered`` (Put) or
+``last_action == WAIT``; after a Get whose passenger another taxi took first they stay and
+choose again (see ``agents.trash``).
+
+State abstractions: each taxi stores only its own variables and the stations' statuses
+(``4**4 = 256``):
+
+=============  ===============================================  ======
+node           relevant variables                               states
+=============  ===============================================  ======
+Root           location, loaded (status != empty), stations     12,800
+Com, NotCom    as Root                                          12,800
+Get_s          location, stations                               6,400
+Put            location, status                                 125
+Navigate(t)    location                                         25
+N/S/E/W        none (leaf irrelevance)                          1
+Pickup         location, stations                               6,400
+Putdown        location, status                                 125
+Wait           stations (its reward: the waiting passengers)    256
+=============  ===============================================  ======
+
+``Root`` keeps "loaded" rather than the destination: a loaded taxi's only useful choice is
+``Put``; ``Get_s`` keeps all stations because the reward inside it (-1 per waiting passenger
+and step) depends on all of them.
+
+Table sizes (``count_values``: a subtask stores ``n_states x n_children`` completion values,
+times ``|U_1|**(n-1)`` columns for a cooperative subtask indexed by the other taxis' actions in
+``U_1``; a primitive ``n_states`` values), per taxi:
+
+======================  ===========  ===========  ==================
+algorithm               ours         text         difference
+======================  ===========  ===========  ==================
+selfish multi-agent     135,810      135,895      -85 (-0.06%)
+Cooperative HRL         519,810      729,815      -210,005 (-28.8%)
+COM-Cooperative HRL     622,210      934,615      -312,405 (-33.4%)
+======================  ===========  ===========  ==================
+
+Ours: Root 76,800 + Get 4 x 12,800 + Put 625 + Navigate 4 x 100 + primitives 6,785 = 135,810;
+the Cooperative root has 12,800 x 6 x 6 = 460,800 values; the COM graph has Root 25,600, Com
+460,800 and NotCom 76,800. The text gives no abstraction, and its three numbers do not follow
+from one rule applied to a full table: indexing ``Root``'s table (``n`` states x 6 children)
+by the other taxi's action in ``U_1`` adds ``30 n`` values, a multiple of 3, but the text's
+increase 729,815 - 135,895 = 593,920 is not divisible by 3. Both of its increases are
+multiples of 20,480 (593,920 = 29 x 20,480; 204,800 = 10 x 20,480), as if ``Root`` had 20,480
+states and the cooperative version replaced 7 values per state (6 completions and a value) by
+36 joint completions while the COM version added 10 (2 at Root, 6 at NotCom, a value each for
+Com and NotCom); but 20,480 x 7 already exceeds the selfish total, and 20,480 = 5 x 16 x 256
+has no factor 25 for the location. The text's counts probably skip unavailable (state, child)
+pairs or store values we cannot infer, so only the selfish count is reproduced closely.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from tensordict import TensorDict
+
+from agents.taxi import Navigate
+from envs.two_taxi import (
+    EMPTY,
+    N_ACTIONS,
+    N_LOCATIONS,
+    N_STATIONS,
+    N_STATIONS_STATES,
+    N_STATUS,
+    PICKUP,
+    PUTDOWN,
+    STATION_NAMES,
+    WAIT,
+)
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+
+#: the text's order of the Root's children: U_1
+U1 = ("GetB", "GetG", "GetR", "GetY", "Wait", "Put")
+NAVIGATE = [f"Navigate_{name}" for name in STATION_NAMES]
+ROOT_STATES = N_LOCATIONS * 2 * N_STATIONS_STATES  # 12,800
+GET_STATES = N_LOCATIONS * N_STATIONS_STATES  # 6,400
+PUT_STATES = N_LOCATIONS * N_STATUS  # 125
+#: the dissertation's counts of C and V values per taxi (Section 6.6)
+TEXT_TABLE_SIZES = {"selfish": 135_895, "cooperative": 729_815, "com_cooperative": 934_615}
+
+
+def _root_state(obs: TensorDict) -> torch.Tensor:
+    loaded = (obs["status"] != EMPTY).long()
+    return (obs["taxi_loc"] * 2 + loaded) * N_STATIONS_STATES + obs["stations"]
+
+
+def _loc_stations(obs: TensorDict) -> torch.Tensor:
+    return obs["taxi_loc"] * N_STATIONS_STATES + obs["stations"]
+
+
+def _loc_status(obs: TensorDict) -> torch.Tensor:
+    return obs["taxi_loc"] * N_STATUS + obs["status"]
+
+
+def _get(station: int) -> Subtask:
+    """Get_s: drive to station ``s`` and pick its passenger up."""
+    name = STATION_NAMES[station]
+    waiting = f"waiting_{name}"
+    return Subtask(
+        f"Get{name}",
+        [NAVIGATE[station], "Pickup"],
+        n_states=GET_STATES,
+        abstract=_loc_stations,
+        terminated=lambda o: (o["status"] != EMPTY) | (o[waiting] == 0),
+    )
+
+
+def _put_mask(obs: TensorDict) -> torch.Tensor:
+    """``[B, 5]``: Navigate(t) only for the destination ``t``; Putdown always."""
+    nav = obs["status"][:, None] == torch.arange(N_STATIONS, device=obs.device)[None, :]
+    return torch.cat([nav, torch.ones_like(nav[:, :1])], dim=1)
+
+
+def _below_u1() -> list[Subtask | Primitive]:
+    """The U_1 subtasks (but Wait, a primitive) and everything below them."""
+    put = Subtask(
+        "Put",
+        [*NAVIGATE, "Putdown"],
+        n_states=PUT_STATES,
+        abstract=_loc_status,
+        terminated=lambda o: o["status"] == EMPTY,
+        child_mask=_put_mask,
+    )
+    return [
+        *(_get(s) for s in range(N_STATIONS)),
+        put,
+        *(Navigate(t) for t in range(N_STATIONS)),
+        Primitive("South", 0),
+        Primitive("North", 1),
+        Primitive("East", 2),
+        Primitive("West", 3),
+        Primitive("Pickup", PICKUP, GET_STATES, _loc_stations),
+        Primitive("Putdown", PUTDOWN, PUT_STATES, _loc_status),
+        Primitive("Wait", WAIT, N_STATIONS_STATES, lambda o: o["stations"]),
+    ]
+
+
+def two_taxi_hierarchy() -> TaskGraph:
+    """The task graph of Figure 6.10 for one taxi, without the communication level."""
+    root = Subtask("Root", U1, n_states=ROOT_STATES, abstract=_root_state)
+    return TaskGraph("Root", [root, *_below_u1()], n_actions=N_ACTIONS)
+
+
+def _one_decision(obs: TensorDict) -> torch.Tensor:
+    """Events that end the U_1 child of Com / NotCom: a pickup, a delivery or a Wait step."""
+    return (obs["picked_up"] == 1) | (obs["delivered"] == 1) | (obs["last_action"] == WAIT)
+
+
+def two_taxi_com_hierarchy() -> TaskGraph:
+    """Figure 6.10 with the communication level: Root -> Com, NotCom -> U_1 (shared)."""
+    root = Subtask("Root", ["Com", "NotCom"], n_states=ROOT_STATES, abstract=_root_state)
+    levels = [
+        Subtask(
+            name,
+            U1,
+            n_states=ROOT_STATES,
+            abstract=_root_state,
+            terminated=_one_decision,
+            event_termination=True,
+        )
+        for name in ("Com", "NotCom")
+    ]
+    return TaskGraph("Root", [root, *levels, *_below_u1()], n_actions=N_ACTIONS)
+
+
+def value_counts(graph: TaskGraph, joint: Mapping[str, int] | None = None) -> dict[str, int]:
+    """Values each node of ``graph`` stores, by name.
+
+    A subtask stores ``n_states x n_children`` completion values (times ``joint[name]`` for a
+    cooperative subtask whose table is also indexed by the other agents' actions), a primitive
+    ``n_states`` values.
+
+    Args:
+        graph: the task graph of one agent.
+        joint: columns per cooperative subtask, ``|U_l| ** (n_agents - 1)``.
+    """
+    joint = dict(joint or {})
+    unknown = sorted(set(joint) - set(graph.names))
+    if unknown:
+        raise ValueError(f"joint names subtasks not in the graph: {unknown}")
+    counts = {}
+    for node in graph.nodes:
+        if node.is_primitive:
+            counts[node.name] = node.n_states
+        else:
+            counts[node.name] = node.n_states * len(node.children_names) * joint.get(node.name, 1)
+    return counts
+
+
+def count_values(graph: TaskGraph, joint: Mapping[str, int] | None = None) -> int:
+    """Total C and V values of one agent's ``graph`` (see ``value_counts``)."""
+    return sum(value_counts(graph, joint).values())
+
+
+def table_sizes(n_agents: int = 2) -> dict[str, int]:
+    """Values per taxi for the selfish, Cooperative and COM-Cooperative learners."""
+    others = len(U1) ** (n_agents - 1)
+    return {
+        "selfish": count_values(two_taxi_hierarchy()),
+        "cooperative": count_values(two_taxi_hierarchy(), {"Root": others}),
+        "com_cooperative": count_values(two_taxi_com_hierarchy(), {"Com": others}),
+    }
+
+
+if __name__ == "__main__":
+    for key, ours in table_sizes().items():
+        text = TEXT_TABLE_SIZES[key]
+        print(f"{key:16s} ours {ours:>9,}  text {text:>9,}  difference {ours - text:>+9,}")
