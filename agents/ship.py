@@ -327,7 +327,7 @@ class ShipMonitor(nn.Module):
         """Restore ``get_extra_state``."""
         self._rows = {k: v.clone() for k, v in state.items()}
 
-    def observe(self, batch, ctx) -> tuple[torch.Tensor, torch.Tensor]:
+    def observe(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
         """Count one transition batch; return episodes ended ``[P]`` and the trigger ``[P]``."""
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         b, p = batch.batch_size[0], self.episodes.events.shape[0]
@@ -345,7 +345,7 @@ class ShipMonitor(nn.Module):
             success = local_success(local, kind.clamp_min(0))
             for t, bins in enumerate(self.low):
                 bins.add(executed & (kind == t), {"success": success})
-        gate = ctx.obs["success"] & ended
+        gate = batch["obs", "success"] & ended
         self.episodes.add(
             ended,
             {
@@ -444,9 +444,9 @@ def make_hybrid(
 class _Monitored:
     """Mixin: a flat learner that also feeds a ``ShipMonitor`` (same metrics as the hybrid)."""
 
-    def update(self, batch, ctx, step: int) -> None:
-        super().update(batch, ctx, step)
-        self.monitor.observe(batch, ctx)
+    def update(self, batch, step: int) -> None:
+        super().update(batch, step)
+        self.monitor.observe(batch)
 
 
 class FlatPGRL(_Monitored, HPGRLLearner):

@@ -1,11 +1,12 @@
-"""Ship steering hybrid: env steps/s on the TorchRL collector path and on the Trainer path.
+"""Ship steering hybrid: env steps/s of the Trainer on the TorchRL collector path and direct.
 
     .venv/bin/python benchmarks/bench_ship.py [--seconds 30] [--envs 1024] [--online]
 
-Both paths train the same population (5 seeds, the ``hybrid`` AlgoSpec of ``agents.ship``)
-from a fresh learner; each is warmed up for 100 batched steps, then timed for ``--seconds``.
-Env steps count every row of every batched step (auto-reset steps included), as the trainer
-does. Prints a markdown table; the load average is printed so a busy machine is visible.
+Both paths (``Trainer(collector=True)`` and the direct loop) train the same population (5
+seeds, the ``hybrid`` AlgoSpec of ``agents.ship``) from a fresh learner; each is warmed up for
+100 batched steps, then timed for ``--seconds``. Env steps count every row of every batched
+step (auto-reset steps included), as the trainer does. Prints a markdown table; the load
+average is printed so a busy machine is visible.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import torch
 
 from agents.ship import DOMAIN, PARAMS, make_hybrid, ship_hierarchy
 from envs.ship import ShipSteeringEnv
-from hrl_torch.collector import HierarchicalPolicy, collect
 from hrl_torch.trainer import TrainConfig, Trainer
 
 
@@ -28,35 +28,30 @@ def _learner(seeds, online=False):
     return graph, make_hybrid(graph, len(seeds), replace(PARAMS, online=online))
 
 
-def bench_collector(seeds, envs, seconds, online=False, steps_per_batch=32):
-    spec = DOMAIN.algos["hybrid"]
-    graph, learner = _learner(seeds, online)
-    env = ShipSteeringEnv(seeds, envs)
-    policy = HierarchicalPolicy(
-        graph, learner, spec.make_exploration(spec.train), env, spec.executor
-    )
-    collect(env, policy, until=lambda: policy.step >= 100 * envs, steps_per_batch=steps_per_batch)
-    start = policy.step
-    stats = collect(
-        env, policy, until=lambda: False, steps_per_batch=steps_per_batch, max_seconds=seconds
-    )
-    return (policy.step - start) * len(seeds) / stats["seconds"]
-
-
-def bench_trainer(seeds, envs, seconds, online=False):
+def bench(seeds, envs, seconds, online=False, collector=False):
+    """Env steps/s of the Trainer on the direct loop or on the TorchRL collector path."""
     spec = DOMAIN.algos["hybrid"]
     graph, learner = _learner(seeds, online)
     env = ShipSteeringEnv(seeds, envs)
     config = TrainConfig(steps=10**12, eval_every=0, progress=False, success_key="success")
     trainer = Trainer(
-        env, graph, learner, spec.make_exploration(config), config, None, spec.executor
+        env,
+        graph,
+        learner,
+        spec.make_exploration(config),
+        config,
+        None,
+        spec.executor,
+        collector=collector,
     )
     for _ in range(100):
         trainer.train_step()
     start, t0 = trainer.step, time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         trainer.train_step()
-    return (trainer.step - start) * len(seeds) / (time.perf_counter() - t0)
+    rate = (trainer.step - start) * len(seeds) / (time.perf_counter() - t0)
+    trainer.close()
+    return rate
 
 
 def main() -> None:
@@ -76,8 +71,8 @@ def main() -> None:
     modes = [False, True] if args.online else [False]
     for envs in args.envs:
         for online in modes:
-            for name, fn in (("collector", bench_collector), ("trainer", bench_trainer)):
-                rate = fn(seeds, envs, args.seconds, online)
+            for name, collector in (("collector", True), ("direct loop", False)):
+                rate = bench(seeds, envs, args.seconds, online, collector)
                 ms = 1000 * len(seeds) * envs / rate
                 mode = "every step" if online else "at the renewal"
                 print(

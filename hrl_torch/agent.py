@@ -1,4 +1,4 @@
-"""One agent step, written once: context -> evaluate -> observe -> update -> act.
+"""One agent step, written once: context -> evaluate -> observe -> act -> update.
 
 ``HierarchicalAgent`` owns a task graph's executor (the Task-Stacks of ``B`` env rows), the
 learner and the policy that turns the learner's values into choices. ``start(obs)`` puts the
@@ -8,12 +8,16 @@ those actions and
 1. computes the graph's context (abstract states, termination, available children),
 2. lets the learner evaluate the values its choices and targets need (``learner.evaluate``),
 3. pops what ended and collects the finished SMDP transitions (``executor.observe``),
-4. updates the learner from them (``learner.update``, training agents only),
-5. pushes children until a primitive is on top and returns the next actions
-   (``executor.act``).
+4. pushes children until a primitive is on top and takes the next actions (``executor.act``),
+5. updates the learner from the transitions (``learner.update``, training agents only).
+
+Steps 1-4 (``decide``) read the learned tables and never change them, so the acting part can
+run as a TorchRL policy whose frames carry the transitions, and the update can run on those
+frames (``hrl_torch.collector``); the direct loop and the collector path learn the same
+tables. The choices of a step see the tables before that step's update.
 
 The trainer, its greedy evaluation, the continuing-task evaluator, the TorchRL collector path
-and the scripts all step through this one method.
+and the scripts all step through this class.
 """
 
 from __future__ import annotations
@@ -26,6 +30,23 @@ from hrl_torch.exploration import Exploration
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import Learner, ValuePolicy
 from hrl_torch.rng import BatchRNG
+
+#: key of the learner's values at ``s'`` in a transition batch (what ``evaluate`` computed)
+VALUES = "values"
+#: key of the observation ``s'`` in a transition batch
+OBS = "obs"
+
+
+def with_values(batch: TensorDict, ctx: StepContext) -> TensorDict:
+    """``batch`` with the learner's values at ``s'`` (``VALUES``) and ``s'`` (``OBS``) set.
+
+    What ``learner.update`` reads besides the transitions; ``ctx`` is the context the
+    transitions end in, after ``learner.evaluate(ctx)``.
+    """
+    b = torch.Size([batch.batch_size[0]])
+    batch.set(VALUES, TensorDict._new_unsafe(ctx.values, batch_size=b))
+    batch.set(OBS, ctx.obs)
+    return batch
 
 
 def make_policy(learner: Learner, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
@@ -54,6 +75,7 @@ class HierarchicalAgent:
         learn: update the learner at every step (training); otherwise only act.
         evaluate: act with the evaluation policy (PG nodes on their modes, nothing recorded).
         transitions: return the SMDP transitions from ``step`` (default: ``learn``).
+        rows: the learner of each row ``[B]`` instead of ``b // E`` (multi-agent rows).
 
     Attributes:
         clock: env steps per learner, the clock of the learner's schedules (exploration, step
@@ -72,18 +94,30 @@ class HierarchicalAgent:
         learn: bool = True,
         evaluate: bool = False,
         transitions: bool | None = None,
+        rows: torch.Tensor | None = None,
     ) -> None:
         self.graph, self.learner = graph, learner
         self.learn = learn
         self.transitions = learn if transitions is None else transitions
-        self.executor = HierarchicalExecutor(
-            graph, rng.batch_size, envs_per_learner, learner.gamma, executor_config
-        )
         self.policy = make_policy(learner, exploration, rng, evaluate)
+        self.executor = HierarchicalExecutor(
+            graph,
+            rng.batch_size,
+            envs_per_learner,
+            learner.gamma,
+            executor_config,
+            learner=rows,
+            score_width=0 if evaluate else getattr(learner, "score_width", 0),
+        )
         self.rows = self.executor.learner
         self.clock = 0
         self.ctx: StepContext | None = None
         self.batch: TensorDict | None = None
+
+    @property
+    def envs_per_learner(self) -> int:
+        """Rows per learner ``E`` (the clock advances by ``E`` per learning step)."""
+        return self.executor.envs_per_learner
 
     def context(self, obs: TensorDict) -> StepContext:
         """The graph's context at ``obs``, with the learner's values in ``ctx.values``."""
@@ -97,11 +131,28 @@ class HierarchicalAgent:
         self.executor.reset()
         return self.executor.act(self.context(obs), self.policy, self.clock)
 
+    def decide(self, td: TensorDict) -> tuple[torch.Tensor, TensorDict | None]:
+        """Steps 1-4 on the env's output ``td``: ``(next actions [B], transitions)``.
+
+        The transitions carry the learner's values at ``s'`` (``VALUES``) and ``s'`` itself
+        (``OBS``): all ``learner.update`` needs. Nothing learned changes.
+        """
+        ctx = self.context(td)
+        batch = self.executor.observe(td, ctx, transitions=self.transitions)
+        action = self.executor.act(ctx, self.policy, self.clock)
+        if batch is not None:
+            with_values(batch, ctx)
+        self.batch = batch
+        return action, batch
+
+    def update(self, batch: TensorDict) -> None:
+        """Step 5: learn from one step's transitions; the clock advances by ``E``."""
+        self.learner.update(batch, self.clock)
+        self.clock += self.executor.envs_per_learner
+
     def step(self, td: TensorDict) -> torch.Tensor:
         """One turn of the loop on the env's output ``td``; returns the next actions ``[B]``."""
-        ctx = self.context(td)
-        self.batch = self.executor.observe(td, ctx, transitions=self.transitions)
+        action, batch = self.decide(td)
         if self.learn:
-            self.learner.update(self.batch, ctx, self.clock)
-            self.clock += self.executor.envs_per_learner
-        return self.executor.act(ctx, self.policy, self.clock)
+            self.update(batch)
+        return action

@@ -1,11 +1,12 @@
 """The batched Task-Stack executor (Section 3.2).
 
-For every env row the executor keeps a Task-Stack of ``D`` levels as tensors ``[B, D]``: the
+For every env row the executor keeps a Task-Stack of ``D`` levels (``hrl_torch.stack``): the
 instance at each level, the child it chose, the abstract state where that child started and the
 reward and time accumulated since. ``observe`` takes one env step: it accumulates rewards, pops
 every level that ended (a terminating subtask aborts everything it called) and emits the
 finished SMDP transitions as a TensorDict. ``act`` pushes children until a primitive is on top
-and returns the primitive actions. The executor never updates values.
+and returns the primitive actions. The executor never updates values, and never writes into a
+stack: each call replaces ``self.stack`` by a new one.
 
 Transitions are a TensorDict ``[B]`` with ``learner [B]`` (learner of the row) and two nested
 TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
@@ -13,7 +14,7 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
 ``batch[LEVEL]`` ``[B, D]``, level ``j`` is the subtask whose child ended:
 
 - ``valid``: a transition was emitted at this level;
-- ``inst``, ``node``, ``child`` (slot in the node's children), ``child_inst``, ``parent_inst``;
+- ``inst``, ``node``, ``child`` (slot in the node's children), ``parent_inst``;
 - ``state`` / ``next_state``: abstract state of ``node`` when the child started / at ``s'``;
 - ``steps`` (primitive steps ``N``), ``duration`` (time ``tau``), ``reward`` (external, summed),
   ``discounted_reward`` (sum of ``gamma**t r``), ``internal_reward`` (discounted shaping of
@@ -25,7 +26,9 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
   ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
   where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
 - with feature nodes (``Subtask.features``): ``features`` / ``next_features``
-  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``.
+  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``;
+- with a policy that scores its choices (PG nodes): ``score_index`` / ``score_value``
+  ``[B, D, K]``, the likelihood-ratio term of the child's choice.
 
 ``batch[PRIMITIVE]`` ``[B]``, the primitive step just taken: ``valid``, ``inst``, ``node``,
 ``state``, ``reward``, ``duration``, ``greedy`` (its parent and all ancestors chose greedily),
@@ -41,7 +44,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import discount, lookup
+from hrl_torch.ops import at_rows, discount, lookup
 from hrl_torch.stack import TaskStack
 
 #: key of the per-level transitions ``[B, D]`` in a transition batch
@@ -54,6 +57,27 @@ class SubtaskTimeoutError(RuntimeError):
     """A subtask ran more primitive steps than ``ExecutorConfig.max_subtask_steps``."""
 
 
+@dataclass
+class Choice:
+    """A policy's choices for the ``B`` rows of one push.
+
+    Attributes:
+        child: chosen child slot ``[B]`` (ignored for rows that do not push).
+        greedy: the choice is the policy's greedy one ``[B]``.
+        action: ``[B, action_dim]``, the action value of rows whose child is a continuous
+            primitive (graphs with continuous primitives), else ``None``.
+        score_index: ``[B, K]`` flat parameter indices of the choice's likelihood-ratio term
+            (policy-gradient nodes), kept on the stack until the child ends; else ``None``.
+        score_value: ``[B, K]`` its values.
+    """
+
+    child: torch.Tensor
+    greedy: torch.Tensor
+    action: torch.Tensor | None = None
+    score_index: torch.Tensor | None = None
+    score_value: torch.Tensor | None = None
+
+
 class Policy(Protocol):
     """Chooses children for the instances on top of the stacks."""
 
@@ -63,12 +87,11 @@ class Policy(Protocol):
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
-    ) -> tuple[torch.Tensor, ...]:
-        """Return ``(child slot [B], greedy flag [B])`` for instances ``inst [B]``.
+    ) -> Choice:
+        """The choices for instances ``inst [B]`` among ``available [B, A]`` children.
 
-        ``push`` counts the pushes made so far in this step. On a graph with continuous
-        primitives, return a third tensor ``[B, action_dim]``: the action value of the rows
-        whose chosen child is a continuous primitive.
+        ``push`` counts the pushes made so far in this step. (A tuple ``(child, greedy[,
+        action])`` is accepted too.)
         """
         ...
 
@@ -83,43 +106,18 @@ class ExecutorConfig:
             what it called) and carry on; aborted children produce no learning target.
         record_visited: keep the last ``L`` states visited during each child for all-states
             updating (0 = off).
+        fixed_pushes: always run ``D - 1`` push rounds instead of stopping when no row needs
+            another push (no device sync per round: for GPUs).
     """
 
     max_subtask_steps: int = 10_000
     on_timeout: Literal["raise", "abort"] = "raise"
     record_visited: int = 0
-
-
-def _at(x: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
-    """``x[b, level[b]]`` for ``x [B, W, ...]`` and ``level [B]`` (clamped to 0)."""
-    idx = level.clamp_min(0).view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
-    return x.gather(1, idx).squeeze(1)
-
-
-def _gather_levels(per_node: torch.Tensor, node: torch.Tensor) -> torch.Tensor:
-    """``per_node[b, node[b, k], :]`` for ``per_node [B, N, F]`` and ``node [B, D]``."""
-    return per_node.gather(1, node[..., None].expand(-1, -1, per_node.shape[-1]))
-
-
-def _scatter_at(x: torch.Tensor, slot: torch.Tensor, value) -> None:
-    """``x[b, slot[b]] = value[b]`` in place, ``slot [B, 1]``.
-
-    Rows aimed at the trash column write there harmlessly.
-    """
-    if isinstance(value, torch.Tensor):
-        value = value.to(x.dtype).view(x.shape[0], 1, *x.shape[2:])
-        idx = slot.view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:])
-        x.scatter_(1, idx, value)
-    else:
-        x.scatter_(1, slot.view(-1, 1, *([1] * (x.dim() - 2))).expand(-1, 1, *x.shape[2:]), value)
+    fixed_pushes: bool = False
 
 
 class HierarchicalExecutor:
-    """Task-Stacks for ``B`` env rows over one task graph.
-
-    The stacks are one ``TaskStack`` (``self.stack``) with ``D + 1`` columns: levels
-    ``0..D-1`` and a trash column ``D`` that masked writes are aimed at, so a push writes each
-    field with one ``scatter_`` and no gather/where.
+    """Task-Stacks for ``B`` env rows over one task graph (``self.stack``, a ``TaskStack``).
 
     Args:
         graph: the task graph.
@@ -127,31 +125,41 @@ class HierarchicalExecutor:
         envs_per_learner: ``E`` (row ``b`` belongs to learner ``b // E``).
         gamma: discount used for ``discounted_reward`` / ``internal_reward``.
         config: guard and all-states options.
+        learner: the learner of each row ``[B]`` instead of ``b // E`` (multi-agent rows).
+        score_width: width ``K`` of the likelihood-ratio terms the policy returns (0: none).
     """
 
     def __init__(
         self,
         graph: TaskGraph,
         batch_size: int,
-        envs_per_learner: int,
+        envs_per_learner: int | None = None,
         gamma: float = 1.0,
         config: ExecutorConfig | None = None,
+        learner: torch.Tensor | None = None,
+        score_width: int = 0,
     ) -> None:
         self.graph = graph
         self.config = config or ExecutorConfig()
         self.gamma = float(gamma)
         self.batch_size = batch_size
-        self.envs_per_learner = envs_per_learner
-        self.n_learners = batch_size // envs_per_learner
         device = graph.node_children.device
         self.device = device
-        self.depth = graph.max_levels
         long = dict(dtype=torch.long, device=device)
-        self.levels = torch.arange(self.depth + 1, **long)
-        self.learner = torch.arange(batch_size, **long) // envs_per_learner
+        if learner is None:
+            learner = torch.arange(batch_size, **long) // (envs_per_learner or batch_size)
+        self.learner = learner.to(device)
+        self.envs_per_learner = envs_per_learner or batch_size
+        self.n_learners = int(self.learner.max()) + 1 if batch_size else 0
+        self.depth = graph.max_levels
+        self.levels = torch.arange(self.depth, **long)
         self.rows = torch.arange(batch_size, **long)
-        self.stack = TaskStack.empty(graph, batch_size, max(self.config.record_visited, 1))
+        self.score_width = score_width
+        self.stack = TaskStack.empty(
+            graph, batch_size, max(self.config.record_visited, 1), score_width
+        )
         self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
+        self._no_level = torch.zeros(batch_size, 1, dtype=torch.bool, device=device)
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
@@ -163,7 +171,7 @@ class HierarchicalExecutor:
 
     def reset(self) -> None:
         """Empty every stack (all rows start at the root on the next ``act``)."""
-        self.stack.clear()
+        self.stack = self.stack.cleared()
 
     # ------------------------------------------------------------------ acting
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
@@ -171,87 +179,95 @@ class HierarchicalExecutor:
 
         Rows whose stack is empty and whose episode is not over start at the root.
         """
-        g, s = self.graph, self.stack
-        fresh_memory = g.remember_all(ctx.obs)
-        fresh = (s.top < 0) & ~s.done
-        self._start_root(fresh, fresh_memory)
-        inst = _at(s.inst, s.top).clamp_min(0)
-        need = (s.top >= 0) & ~s.done & ~lookup(g.inst_is_primitive, inst)
+        g, f = self.graph, self.stack.tensors()
+        fresh = (f["top"] < 0) & ~f["done"]
+        inst = torch.where(fresh[:, None] & (self.levels == 0), 0, f["inst"])
+        top = torch.where(fresh, 0, f["top"])
+        first = top  # the level that makes the first choice
+        cur = inst.gather(1, top.clamp_min(0)[:, None]).squeeze(1).clamp_min(0)
+        need = (top >= 0) & ~f["done"] & ~lookup(g.inst_is_primitive, cur)
+        pushed = need
+        stuck = torch.full_like(cur, -1)  # the node of a row that must choose but cannot
         policy.new_step()
         push = 0
-        while bool(need.any()):
-            node = lookup(g.inst_node, inst)
-            available = ctx.available.gather(
-                1, node.view(-1, 1, 1).expand(-1, 1, ctx.available.shape[2])
-            ).squeeze(1)
-            _check_available(g, need, available, node)
-            choice, greedy, *action = policy.select(inst, ctx, available, step, push)
+        while push < self.depth - 1 and (self.config.fixed_pushes or bool(need.any())):
+            node = lookup(g.inst_node, cur)
+            available = at_rows(ctx.available, node)
+            stuck = torch.where(need & ~available.any(-1), node, stuck)
+            choice = _as_choice(policy.select(cur, ctx, available, step, push))
+            here = (self.levels == top[:, None]) & need[:, None]  # the choosing level
+            f["child"] = torch.where(here, choice.child[:, None], f["child"])
+            f["own_greedy"] = torch.where(here, choice.greedy[:, None], f["own_greedy"])
+            if choice.score_index is not None:
+                self._record_score(f, here, choice)
+            child = lookup(g.inst_children_flat, cur * g.max_children + choice.child).clamp_min(0)
+            child_prim = lookup(g.inst_is_primitive, child)
+            if g.action_dim:
+                if choice.action is None:
+                    raise GraphError("a continuous primitive was chosen without an action value")
+                f["cont_action"] = torch.where(
+                    (need & child_prim)[:, None], choice.action, f["cont_action"]
+                )
+            top = top + need
+            inst = torch.where(_shift_right(here), child[:, None], inst)
+            cur = torch.where(need, child, cur)
+            need = need & ~child_prim
             push += 1
-            self._record_choice(need, node, choice, greedy, ctx)
-            inst, need = self._push_child(need, inst, choice, action, ctx, fresh_memory)
-        live = s.top >= 0
+        if bool((stuck >= 0).any()):
+            _raise_stuck(g, stuck)
+        f["inst"], f["top"] = inst, top
+        self._fresh_levels(f, ctx, first, pushed, fresh)
+        self.stack = TaskStack.from_tensors(f, self.batch_size)
         if g.action_dim:
-            self._action = torch.where(live[:, None], s.cont_action, 0.0)
+            self._action = torch.where((top >= 0)[:, None], f["cont_action"], 0.0)
         else:
-            self._action = torch.where(live, lookup(g.node_action, lookup(g.inst_node, inst)), 0)
+            self._action = torch.where(top >= 0, lookup(g.node_action, lookup(g.inst_node, cur)), 0)
         self._obs = ctx.obs
         return self._action
 
-    def _start_root(self, fresh: torch.Tensor, fresh_memory: torch.Tensor | None) -> None:
-        """Put the root on the empty stacks of the rows ``fresh [B]``."""
-        g, s, trash = self.graph, self.stack, self.depth
-        slot = torch.where(fresh, 0, trash)[:, None]
-        _scatter_at(s.inst, slot, 0)
-        _scatter_at(s.inv_steps, slot, 0)
-        s.top = torch.where(fresh, 0, s.top)
-        if fresh_memory is not None:
-            s.memory[:, g.root] = torch.where(
-                fresh[:, None], fresh_memory[:, g.root], s.memory[:, g.root]
+    def _record_score(self, f: dict, here: torch.Tensor, choice: Choice) -> None:
+        """Keep the choice's likelihood-ratio term at the choosing level."""
+        if choice.score_index.shape[1] != self.score_width:
+            raise ValueError(
+                f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
+                f"the executor keeps score_width={self.score_width}"
             )
-        self.stats.count_calls(self.learner, g.root, fresh)
+        at = here[..., None]
+        f["score_index"] = torch.where(at, choice.score_index[:, None, :], f["score_index"])
+        f["score_value"] = torch.where(at, choice.score_value[:, None, :], f["score_value"])
 
-    def _record_choice(self, need, node, choice, greedy, ctx: StepContext) -> None:
-        """Level ``top`` of the rows ``need`` records its new child and fresh accumulators."""
-        s, trash = self.stack, self.depth
-        slot = torch.where(need, s.top, trash)[:, None]
-        parent_greedy = _at(s.greedy, s.top - 1) | (s.top == 0)
-        _scatter_at(s.child, slot, choice)
-        _scatter_at(s.start_state, slot, ctx.abstract.gather(1, node[:, None]))
-        _scatter_at(s.greedy, slot, greedy & parent_greedy)
-        _scatter_at(s.own_greedy, slot, greedy)
-        for acc in (s.steps, s.time, s.reward, s.disc_reward, s.internal):
-            _scatter_at(acc, slot, 0)
+    def _fresh_levels(self, f: dict, ctx: StepContext, first, pushed, rooted) -> None:
+        """Start states, accumulators and flags of the levels pushed (or re-chosen) this step.
+
+        Levels ``first .. top`` of the rows that ``pushed`` are fresh: the ones below ``top``
+        chose a new child (accumulators restart), the ones above ``first`` are new invocations,
+        and so is the root of the rows that started (``rooted``).
+        """
+        g, lv = self.graph, self.levels[None, :]
+        top = f["top"]
+        fresh = pushed[:, None] & (lv >= first[:, None]) & (lv <= top[:, None])
+        chose = fresh & (lv < top[:, None])
+        invoked = (fresh & (lv > first[:, None])) | (rooted[:, None] & (lv == 0))
+        node = lookup(g.inst_node, f["inst"].clamp_min(0))
+        f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])
+        for key in ("steps", "time", "reward", "disc_reward", "internal"):
+            f[key] = torch.where(chose, 0, f[key])
+        f["inv_steps"] = torch.where(invoked, 0, f["inv_steps"])
+        # greedy: the level's own choice and every ancestor's (a running AND over levels)
+        f["greedy"] = f["own_greedy"].to(torch.uint8).cummin(1).values.bool()
         if ctx.features is not None:
-            _scatter_at(s.start_features, slot, _at(ctx.features, node))
+            feats = ctx.features.gather(1, node[..., None].expand(-1, -1, ctx.features.shape[2]))
+            f["start_features"] = torch.where(chose[..., None], feats, f["start_features"])
         if self.config.record_visited:
-            _scatter_at(s.vis_state[:, :, 0], slot, _at(s.start_state, s.top))
-            _scatter_at(s.vis_steps[:, :, 0], slot, 0)
-            _scatter_at(s.vis_time[:, :, 0], slot, 0.0)
-
-    def _push_child(self, need, inst, choice, action, ctx: StepContext, fresh_memory):
-        """Push the chosen children one level up; returns the new tops and who still needs one."""
-        g, s, trash = self.graph, self.stack, self.depth
-        child_inst = lookup(g.inst_children.view(-1), inst * g.max_children + choice)
-        child_inst = child_inst.clamp_min(0)  # rows that push nothing may read padding
-        child_node = lookup(g.inst_node, child_inst)
-        child_is_prim = lookup(g.node_is_primitive, child_node)
-        s.top = s.top + need.long()
-        slot = torch.where(need, s.top, trash)[:, None]
-        _scatter_at(s.inst, slot, child_inst)
-        _scatter_at(s.inv_steps, slot, 0)
-        prim_slot = torch.where(need & child_is_prim, s.top, trash)[:, None]
-        _scatter_at(s.start_state, prim_slot, ctx.abstract.gather(1, child_node[:, None]))
-        if g.action_dim:
-            if not action or action[0] is None:
-                raise GraphError("a continuous primitive was chosen without an action value")
-            pushed = (need & child_is_prim)[:, None]
-            s.cont_action = torch.where(pushed, action[0], s.cont_action)
-        if fresh_memory is not None:
-            s.memory[self.rows, child_node] = torch.where(
-                need[:, None], fresh_memory[self.rows, child_node], s.memory[self.rows, child_node]
-            )
-        self.stats.count_calls(self.learner, child_node, need)
-        return torch.where(need, child_inst, inst), need & ~child_is_prim
+            first_visit = chose[..., None] & (self._visit_slots == 0)
+            f["vis_state"] = torch.where(first_visit, f["start_state"][..., None], f["vis_state"])
+            f["vis_steps"] = torch.where(first_visit, 0, f["vis_steps"])
+            f["vis_time"] = torch.where(first_visit, 0.0, f["vis_time"])
+        if g.memory_nodes:  # a new invocation remembers where it started
+            started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
+            started = started.scatter_add(1, node, invoked.float()) > 0
+            f["memory"] = torch.where(started[..., None], g.remember_all(ctx.obs), f["memory"])
+        self.stats.count_calls(self.learner, node, invoked)
 
     # ------------------------------------------------------------------ observing
     def observe(
@@ -261,155 +277,168 @@ class HierarchicalExecutor:
 
         With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
         """
-        g, s = self.graph, self.stack
-        reward = step_td["reward"]
-        _check_step(reward, step_td["duration"])
+        g, f = self.graph, self.stack.tensors()
+        reward, tau = step_td["reward"], step_td["duration"]
+        _check_step(reward, tau)
         real = ~step_td["is_init"]
         env_term = step_td["terminated"] & real
         env_trunc = step_td["truncated"] & real & ~env_term
-        active = (self.levels[None, :] <= s.top[:, None]) & real[:, None]
-        node = lookup(g.inst_node, s.inst.clamp_min(0))
+        inst = f["inst"]
+        active = (inst >= 0) & real[:, None]
+        node = lookup(g.inst_node, inst.clamp_min(0))
         is_prim = lookup(g.node_is_primitive, node) & active
-        self._accumulate(active, node, reward, step_td["duration"], ctx)
+        self._accumulate(f, active, node, reward, tau, ctx)
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
         ended_own = own | is_prim | (active & env_term[:, None])
-        timeout = self._timeouts(active, is_prim, node)
+        timeout = self._timeouts(f, active, is_prim, node)
         cut = ended_own | timeout | (active & env_trunc[:, None])
         popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
-        child_popped = _shift_left(popped)
-        emit = active & ~is_prim & child_popped
-        child_done = _shift_left(ended_own)
+        emit = active & ~is_prim & _shift_left(popped)
         terminal = (own | env_term[:, None]) & active & ~is_prim
 
         batch = None
         if transitions:
             batch = self._transitions(
-                step_td, ctx, node, emit, child_done, terminal, env_trunc, real
+                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, real
             )
         if self.config.record_visited:
-            self._record_visits(active & ~is_prim & ~child_popped, ctx, node)
+            self._record_visits(f, active & ~is_prim & ~_shift_left(popped), ctx, node)
 
-        # statistics, then pop
-        self.stats.count_ends(self.learner, node, popped, ended_own & popped, s.inv_steps)
-        s.inst = torch.where(popped, -1, s.inst)
-        s.top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
-        s.done = env_term | env_trunc
+        self.stats.count_ends(self.learner, node, popped, ended_own & popped, f["inv_steps"])
+        f["inst"] = torch.where(popped, -1, inst)
+        f["top"] = torch.where(real, (active & ~popped).sum(1) - 1, -1)
+        f["done"] = env_term | env_trunc
+        self.stack = TaskStack.from_tensors(f, self.batch_size)
         return batch
 
-    def _accumulate(self, active, node, reward, tau, ctx: StepContext) -> None:
+    def _accumulate(self, f: dict, active, node, reward, tau, ctx: StepContext) -> None:
         """Add the step's reward and time to the current child of every active level."""
-        g, s = self.graph, self.stack
-        s.reward += active * reward[:, None]
+        g = self.graph
+        r = active * reward[:, None]
+        f["reward"] = f["reward"] + r
         if self.gamma == 1.0:
-            s.disc_reward += active * reward[:, None]
+            f["disc_reward"] = f["disc_reward"] + r
         else:
-            s.disc_reward += active * discount(self.gamma, s.time) * reward[:, None]
+            f["disc_reward"] = f["disc_reward"] + discount(self.gamma, f["time"]) * r
         if g.shaping_nodes and self._obs is not None:
-            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, s.memory)
-            s.internal += active * discount(self.gamma, s.time) * shaping.gather(1, node)
-        s.steps += active
-        s.time += active * tau[:, None]
-        s.inv_steps += active
+            shaping = g.shaping_rewards(self._obs, self._action, ctx.obs, f["memory"])
+            f["internal"] = f["internal"] + active * discount(self.gamma, f["time"]) * (
+                shaping.gather(1, node)
+            )
+        f["steps"] = f["steps"] + active
+        f["time"] = f["time"] + active * tau[:, None]
+        f["inv_steps"] = f["inv_steps"] + active
 
-    def _timeouts(self, active, is_prim, node) -> torch.Tensor:
-        """Levels ``[B, W]`` past the guard (raises with ``on_timeout="raise"``).
+    def _timeouts(self, f: dict, active, is_prim, node) -> torch.Tensor:
+        """Levels ``[B, D]`` past the guard (raises with ``on_timeout="raise"``).
 
         The guard spares the root: a continuing root never terminates by design.
         """
-        cfg, s = self.config, self.stack
-        timeout = active & ~is_prim & (self.levels > 0) & (s.inv_steps >= cfg.max_subtask_steps)
+        cfg = self.config
+        timeout = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
         if cfg.on_timeout == "raise" and bool(timeout.any()):
             row, lvl = (int(v) for v in timeout.nonzero()[0])
             name = self.graph.names[int(node[row, lvl])]
-            path = self.graph.instance_path(int(s.inst[row, lvl]))
+            path = self.graph.instance_path(int(f["inst"][row, lvl]))
             raise SubtaskTimeoutError(
                 f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
                 f"terminating (env row {row}, instance {path})"
             )
         return timeout
 
-    def _record_visits(
-        self, continuing: torch.Tensor, ctx: StepContext, node: torch.Tensor
-    ) -> None:
+    def _record_visits(self, f: dict, continuing, ctx: StepContext, node) -> None:
         """Append ``s'`` to the visit buffer of the levels whose child goes on.
 
         ``s'`` is abstracted for each level's node; visit ``k`` of a child lives in slot
         ``k % L``.
         """
-        s, size = self.stack, self.config.record_visited
-        slot = (s.steps % size).unsqueeze(-1)  # steps already counts this step: visit index
+        size = self.config.record_visited
+        slot = (f["steps"] % size).unsqueeze(-1)  # steps already counts this step: visit index
+        here = continuing[..., None] & (self._visit_slots == slot)
         state = ctx.abstract.gather(1, node)
-        for buf, value in ((s.vis_state, state), (s.vis_steps, s.steps), (s.vis_time, s.time)):
-            old = buf.gather(2, slot).squeeze(-1)
-            buf.scatter_(2, slot, torch.where(continuing, value.to(buf.dtype), old).unsqueeze(-1))
+        for key, value in (
+            ("vis_state", state),
+            ("vis_steps", f["steps"]),
+            ("vis_time", f["time"]),
+        ):
+            f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
-    def _transitions(self, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
+    def _transitions(self, f, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
         """The finished SMDP transitions of this step (see the module docstring)."""
-        g, s, d = self.graph, self.stack, self.depth
-        node, terminal, emit = node[:, :d], terminal[:, :d], emit[:, :d]
+        g, b, dev = self.graph, self.batch_size, self.device
         if g.internal_nodes:
-            pseudo = g.internal_rewards_at_termination(ctx.obs, s.memory).gather(1, node)
+            pseudo = g.internal_rewards_at_termination(ctx.obs, f["memory"]).gather(1, node)
             pseudo = pseudo * terminal
         else:
-            pseudo = torch.zeros(node.shape, device=self.device)
+            pseudo = torch.zeros(node.shape, device=dev)
         level = {
             "valid": emit,
-            "inst": s.inst[:, :d].clone(),
+            "inst": f["inst"],
             "node": node,
-            "child": s.child[:, :d].clone(),
-            "child_inst": _shift_left(s.inst, fill=-1)[:, :d],
-            "parent_inst": _shift_right(s.inst, fill=-1)[:, :d],
-            "state": s.start_state[:, :d].clone(),
+            "child": f["child"],
+            "parent_inst": _shift_right(f["inst"], fill=-1),
+            "state": f["start_state"],
             "next_state": ctx.abstract.gather(1, node),
-            "steps": s.steps[:, :d].clone(),
-            "duration": s.time[:, :d].clone(),
-            "reward": s.reward[:, :d].clone(),
-            "discounted_reward": s.disc_reward[:, :d].clone(),
-            "internal_reward": s.internal[:, :d].clone(),
+            "steps": f["steps"],
+            "duration": f["time"],
+            "reward": f["reward"],
+            "discounted_reward": f["disc_reward"],
+            "internal_reward": f["internal"],
             "pseudo_reward": pseudo,
             "terminal": terminal,
-            "child_done": child_done[:, :d] & emit,
+            "child_done": child_done & emit,
             "truncated": env_trunc[:, None] & emit & ~terminal,
-            "greedy": s.greedy[:, :d].clone(),
-            "own_greedy": s.own_greedy[:, :d].clone(),
+            "greedy": f["greedy"],
+            "own_greedy": f["own_greedy"],
         }
         if ctx.features is not None:
-            level["features"] = s.start_features[:, :d].clone()
-            level["next_features"] = _gather_levels(ctx.features, node)
+            level["features"] = f["start_features"]
+            level["next_features"] = ctx.features.gather(
+                1, node[..., None].expand(-1, -1, ctx.features.shape[2])
+            )
+        if self.score_width:
+            level["score_index"] = f["score_index"]
+            level["score_value"] = f["score_value"]
         if self.config.record_visited:
             level.update(
-                visited_state=s.vis_state[:, :d].clone(),
-                visited_steps=s.vis_steps[:, :d].clone(),
-                visited_time=s.vis_time[:, :d].clone(),
-                visited_valid=self._visit_slots[None, None, :]
-                < s.steps[:, :d].clamp_max(self.config.record_visited)[:, :, None],
+                visited_state=f["vis_state"],
+                visited_steps=f["vis_steps"],
+                visited_time=f["vis_time"],
+                visited_valid=self._visit_slots
+                < f["steps"].clamp_max(self.config.record_visited)[..., None],
             )
-        b, dev = self.batch_size, self.device
-        return TensorDict(
+        size = torch.Size([b])
+        return TensorDict._new_unsafe(
             {
                 "learner": self.learner,
-                LEVEL: TensorDict(level, batch_size=[b, d], device=dev),
-                PRIMITIVE: TensorDict(self._primitive(step_td, real), batch_size=[b], device=dev),
+                LEVEL: TensorDict._new_unsafe(level, batch_size=torch.Size([b, self.depth])),
+                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real), size),
             },
-            batch_size=[b],
-            device=dev,
+            batch_size=size,
         )
 
-    def _primitive(self, step_td: TensorDict, real: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _primitive(self, f: dict, step_td: TensorDict, real: torch.Tensor) -> dict:
         """The fields of the primitive step each row just took (``batch[PRIMITIVE]``)."""
-        s = self.stack
-        inst = _at(s.inst, s.top)
+        g, top = self.graph, f["top"]
+        at_top = top.clamp_min(0)[:, None]
+        inst = f["inst"].gather(1, at_top).squeeze(1)
+        under = f["greedy"].gather(1, (top - 1).clamp_min(0)[:, None]).squeeze(1)
+        node = lookup(g.inst_node, inst.clamp_min(0))
+        if g.action_dim:
+            action = f["cont_action"]
+        else:
+            action = lookup(g.node_action, node)
         return {
-            "valid": real & (s.top >= 0),
+            "valid": real & (top >= 0),
             "inst": inst,
-            "node": lookup(self.graph.inst_node, inst.clamp_min(0)),
-            "state": _at(s.start_state, s.top),
+            "node": node,
+            "state": f["start_state"].gather(1, at_top).squeeze(1),
             "reward": step_td["reward"],
             "duration": step_td["duration"],
-            "greedy": _at(s.greedy, s.top - 1),
-            "action": self._action.clone(),
+            "greedy": under,
+            "action": action,
         }
 
     # ------------------------------------------------------------------ checkpoints
@@ -424,11 +453,19 @@ class HierarchicalExecutor:
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a ``state_dict`` taken from an executor of the same shape."""
-        self.stack.load_state_dict(state["stack"])
+        stack = self.stack.load_state_dict(state["stack"])
         self.stats.load_state_dict(state["stats"])
+        self.stack = stack
         self._action = state["action"].to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _as_choice(out) -> Choice:
+    """A policy's ``select`` result as a ``Choice`` (tuples ``(child, greedy[, action])``)."""
+    if isinstance(out, Choice):
+        return out
+    return Choice(out[0], out[1], out[2] if len(out) > 2 else None)
 
 
 def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
@@ -443,29 +480,23 @@ def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
         )
 
 
-def _check_available(g: TaskGraph, need, available, node) -> None:
+def _raise_stuck(g: TaskGraph, stuck: torch.Tensor) -> None:
     """A subtask that must choose but has no available child is a graph error."""
-    stuck = need & ~available.any(-1)
-    if bool(stuck.any()):
-        row = int(stuck.nonzero()[0])
-        raise GraphError(
-            f"subtask {g.names[int(node[row])]!r} has no available child in env row {row} "
-            f"(every child is terminated, not initiable or masked)"
-        )
+    row = int((stuck >= 0).nonzero()[0])
+    raise GraphError(
+        f"subtask {g.names[int(stuck[row])]!r} has no available child in env row {row} "
+        f"(every child is terminated, not initiable or masked)"
+    )
 
 
 def _shift_left(x: torch.Tensor, fill=False) -> torch.Tensor:
     """``out[:, k] = x[:, k + 1]``; the last column gets ``fill``."""
-    out = torch.full_like(x, fill)
-    out[:, :-1] = x[:, 1:]
-    return out
+    return torch.cat([x[:, 1:], torch.full_like(x[:, :1], fill)], 1)
 
 
 def _shift_right(x: torch.Tensor, fill=False) -> torch.Tensor:
     """``out[:, k] = x[:, k - 1]``; the first column gets ``fill``."""
-    out = torch.full_like(x, fill)
-    out[:, 1:] = x[:, :-1]
-    return out
+    return torch.cat([torch.full_like(x[:, :1], fill), x[:, :-1]], 1)
 
 
 class ExecutorStats:
@@ -480,8 +511,9 @@ class ExecutorStats:
         self.n_nodes = n_nodes
 
     def count_calls(self, learner: torch.Tensor, node: torch.Tensor, mask: torch.Tensor) -> None:
-        """Count one invocation of ``node[b]`` where ``mask[b]``."""
-        self.calls.view(-1).index_add_(0, learner * self.n_nodes + node, mask.float())
+        """Count one invocation of ``node[b, k]`` where ``mask[b, k]`` (``[B, D]``)."""
+        idx = (learner[:, None] * self.n_nodes + node).reshape(-1)
+        self.calls.view(-1).index_add_(0, idx, mask.reshape(-1).float())
 
     def count_ends(self, learner, node, popped, success, inv_steps) -> None:
         """Count finished invocations (``[B, D]`` masks) and their lengths in steps."""

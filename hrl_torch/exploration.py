@@ -1,7 +1,7 @@
 """Exploration over masked action values: greedy, epsilon-greedy and Boltzmann, with schedules.
 
 Each strategy maps action values ``q [B, A]``, an availability mask ``[B, A]`` and a block of
-uniforms ``u [B, A + 2]`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that
+uniforms ``u [B, A + 1]`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that
 choice is greedy (the flag the average-reward learners use to update their gains only after
 non-random actions). Taking pre-drawn uniforms keeps the random stream of a row independent of
 how many other rows needed a decision.
@@ -68,19 +68,20 @@ def as_schedule(value: float | Schedule) -> Schedule:
 
 def masked_argmax(q: torch.Tensor, available: torch.Tensor) -> torch.Tensor:
     """Index of the largest available value per row (``q [..., A]`` -> ``[...]``)."""
-    return torch.where(available, q, torch.full_like(q, -math.inf)).argmax(-1)
+    return torch.where(available, q, -math.inf).argmax(-1)
 
 
 def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Uniform pick among available entries using uniforms ``u [B]`` in ``[0, 1)``."""
-    count = available.sum(-1).clamp_min(1)
-    k = torch.minimum((u * count).long(), count - 1)  # the k-th available entry
-    return (available.cumsum(-1) <= k.unsqueeze(-1)).sum(-1).clamp_max(available.shape[-1] - 1)
+    """Uniform pick among available entries: the available entry with the largest ``u``.
+
+    ``u [B, A]`` independent uniforms (ties have probability 0).
+    """
+    return torch.where(available, u, -1.0).argmax(-1)
 
 
 def uniforms_needed(n_children: int) -> int:
-    """Width of the uniform block every strategy's ``select`` takes."""
-    return n_children + 2
+    """Width of the uniform block every strategy's ``select`` takes: one per child and one."""
+    return n_children + 1
 
 
 class Greedy:
@@ -95,7 +96,11 @@ class Greedy:
 
 
 class EpsilonGreedy:
-    """With probability ``epsilon(step)`` a uniformly random available child, else greedy."""
+    """With probability ``epsilon(step)`` a uniformly random available child, else greedy.
+
+    The random child is the available one with the largest of the row's per-child uniforms,
+    the same numbers that break the greedy choice's ties (only one of the two is used).
+    """
 
     def __init__(self, epsilon: float | Schedule) -> None:
         self.epsilon = as_schedule(epsilon)
@@ -105,10 +110,9 @@ class EpsilonGreedy:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice [B], greedy [B])``; a random pick that equals the greedy one counts."""
         a = q.shape[-1]
-        greedy_choice, _ = Greedy().select(q, available, u, step)
+        greedy_choice = masked_argmax(q + u[:, :a] * _TIE_NOISE, available)
         explore = u[:, a] < self.epsilon(step)
-        random_choice = uniform_choice(available, u[:, a + 1])
-        choice = torch.where(explore, random_choice, greedy_choice)
+        choice = torch.where(explore, uniform_choice(available, u[:, :a]), greedy_choice)
         return choice, choice == greedy_choice
 
 
@@ -123,14 +127,13 @@ class Boltzmann:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice [B], greedy [B])`` sampled by inverse CDF."""
         temp = max(self.temperature(step), 1e-8)
-        logits = torch.where(available, q / temp, torch.full_like(q, -math.inf))
+        logits = torch.where(available, q / temp, -math.inf)
         probs = torch.softmax(logits, dim=-1)
         pick = u[:, q.shape[-1], None]
         choice = (probs.cumsum(-1) <= pick).sum(-1).clamp_max(q.shape[-1] - 1)
-        choice = torch.where(
-            available.gather(-1, choice[:, None]).squeeze(-1), choice, masked_argmax(q, available)
-        )
-        return choice, choice == masked_argmax(q, available)
+        best = masked_argmax(q, available)
+        choice = torch.where(available.gather(-1, choice[:, None]).squeeze(-1), choice, best)
+        return choice, choice == best
 
 
 Exploration = Greedy | EpsilonGreedy | Boltzmann

@@ -440,6 +440,9 @@ class TaskGraph(nn.Module):
         self.register_buffer("inst_parent", torch.tensor(inst_parent, **as_long), persistent=False)
         self.register_buffer("inst_depth", torch.tensor(inst_depth, **as_long), persistent=False)
         self.register_buffer("inst_children", inst_children, persistent=False)
+        # row ``i * max_children + a``: the instance of child slot ``a`` of instance ``i``
+        self.register_buffer("inst_children_flat", inst_children.view(-1), persistent=False)
+        self.register_buffer("inst_slot", torch.tensor(inst_slot, **as_long), persistent=False)
         self.register_buffer(
             "inst_is_primitive", self.node_is_primitive[self.inst_node], persistent=False
         )

@@ -24,6 +24,7 @@ from typing import Protocol
 import torch
 from torch import nn
 
+from hrl_torch.executor import Choice
 from hrl_torch.exploration import Exploration, Greedy, uniform_choice
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
@@ -69,7 +70,7 @@ class TriggeredEpsilon(nn.Module):
 class Monitor(Protocol):
     """Domain knowledge about a hybrid's progress, fed every transition batch."""
 
-    def observe(self, batch, ctx: StepContext) -> tuple[torch.Tensor, torch.Tensor]:
+    def observe(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(episodes ended per learner [P], epsilon trigger per learner [P] bool)``."""
         ...
 
@@ -170,17 +171,22 @@ class HybridLearner(Learner):
         """The value learner's action values."""
         return self.value.action_values(inst, ctx)
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    @property
+    def score_width(self) -> int:
+        """The PG nodes' likelihood-ratio width (the executor keeps the terms per level)."""
+        return self.pg.score_width
+
+    def update(self, batch, step: int) -> None:
         """Each learner learns from its nodes' transitions; the monitor sees the batch."""
-        self.value.update(batch, ctx, step)
-        self.pg.update(batch, ctx, step)
+        self.value.update(batch, step)
+        self.pg.update(batch, step)
         for part in (self.value, self.pg):
             self.td_abs += part.td_abs
             self.td_count += part.td_count
             part.td_abs.zero_()
             part.td_count.zero_()
         if self.monitor is not None:
-            ended, trigger = self.monitor.observe(batch, ctx)
+            ended, trigger = self.monitor.observe(batch)
             if self.epsilon is not None:
                 self.epsilon.observe(ended, trigger)
 
@@ -192,7 +198,7 @@ class HybridLearner(Learner):
 class HybridPolicy:
     """Executor policy of a hybrid graph: exploration over action values, or PG sampling.
 
-    Each push reads one draw of ``A + 5`` uniforms per row: ``A + 2`` for the value nodes'
+    Each push reads one block of ``A + 4`` uniforms per row: ``A + 1`` for the value nodes'
     exploration, 3 for the PG policies.
 
     Args:
@@ -211,20 +217,22 @@ class HybridPolicy:
         self.exploration = exploration
         self.greedy = evaluate
         self.rng = rng
-        self._first = 0
+        self.width = learner.graph.max_children + 4
+        self._u = None
 
     def new_step(self) -> None:
-        """Reserve this step's draws, one per push level."""
-        self._first = self.rng.reserve(self.learner.graph.max_levels)
+        """Draw this step's uniforms ``[B, levels, A + 4]``."""
+        levels = self.learner.graph.max_levels
+        self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
 
-    def select(self, inst, ctx: StepContext, available, step: int, push: int):
-        """``(child slot [B], greedy flag [B], action [B, d] or None)`` for one push."""
+    def select(self, inst, ctx: StepContext, available, step: int, push: int) -> Choice:
+        """The choices of the ``push``-th push of the step."""
         lrn = self.learner
         a = available.shape[1]
-        u = self.rng.uniform(a + 5, counter=self._first + push)
+        u = self._u[:, push]
         node = lrn.graph.inst_node[inst]
         pg_row = lrn.pg.node_group[node] >= 0
-        choice, flag, action = lrn.pg.select(inst, ctx, available, u[:, a + 2 :], self.greedy)
+        out = lrn.pg.select(inst, ctx, available, u[:, a + 1 :], self.greedy)
         if not bool(pg_row.all()):
             q = lrn.value.action_values(inst, ctx)
             best, _ = Greedy().select(q, available, u, step)
@@ -232,10 +240,10 @@ class HybridPolicy:
                 v_choice, v_flag = best, torch.ones_like(pg_row)
             elif lrn.epsilon is not None:
                 explore = u[:, a] < lrn.epsilon.values()[ctx.learner]
-                v_choice = torch.where(explore, uniform_choice(available, u[:, a + 1]), best)
+                v_choice = torch.where(explore, uniform_choice(available, u[:, :a]), best)
                 v_flag = v_choice == best
             else:
-                v_choice, v_flag = self.exploration.select(q, available, u[:, : a + 2], step)
-            choice = torch.where(pg_row, choice, v_choice)
-            flag = torch.where(pg_row, flag, v_flag)
-        return choice, flag, action
+                v_choice, v_flag = self.exploration.select(q, available, u[:, : a + 1], step)
+            out.child = torch.where(pg_row, out.child, v_choice)
+            out.greedy = torch.where(pg_row, out.greedy, v_flag)
+        return out

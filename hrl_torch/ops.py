@@ -23,3 +23,10 @@ def discount(gamma: float, time: torch.Tensor) -> torch.Tensor:
     equal separate runs; through float64 the result agrees.
     """
     return (gamma ** time.double()).to(time.dtype)
+
+
+def at_rows(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``x[b, index[b]]`` for ``x [B, N, *rest]`` and ``index [B]``: ``[B, *rest]``."""
+    flat = x.reshape(x.shape[0] * x.shape[1], *x.shape[2:])
+    rows = torch.arange(x.shape[0], device=x.device) * x.shape[1] + index
+    return flat.index_select(0, rows)

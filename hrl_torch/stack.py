@@ -3,36 +3,38 @@
 A Task-Stack holds, per level, the subtask instance running there and what the executor needs
 to close the SMDP transition of the child that level chose: the child, the abstract state
 where the child started, and the reward and time accumulated since. ``HierarchicalExecutor``
-keeps one ``TaskStack`` for its ``B`` rows, pushes and pops it, and checkpoints it through
-``state_dict``; ``describe`` prints one row's stack by name.
+keeps one ``TaskStack`` for its ``B`` rows and replaces it by a new one at every pop and push
+(it never writes into a stack in place), so a stack can travel in a rollout TensorDict the way
+a recurrent policy's hidden state does (``hrl_torch.collector``), and an old stack stays valid
+after the executor moved on. ``describe`` prints one row's stack by name.
 """
 
 from __future__ import annotations
 
 import torch
-from tensordict import tensorclass
+from tensordict import TensorDict, tensorclass
 
 from hrl_torch.graph import TaskGraph
 
 
 @tensorclass
 class TaskStack:
-    """Task-Stacks of ``B`` rows, ``batch_size [B]``, ``W = levels + 1`` columns.
+    """Task-Stacks of ``B`` rows, ``batch_size [B]``, ``D`` levels (level ``0``: the root).
 
-    Column ``W - 1`` is a *trash* level: masked pushes write there, so a push is one
-    ``scatter_`` per field with no gather or ``where``. Level ``0`` holds the root.
-
-    Per level ``[B, W]`` (accumulators count from the start of the level's current child):
+    Per level ``[B, D]`` (accumulators count from the start of the level's current child):
 
     - ``inst``: instance at each level (-1: empty); ``child``: the child slot it chose;
-    - ``start_state``: abstract state of the level's node where the child started;
+    - ``start_state``: abstract state of the level's node where the child started (for the
+      primitive on top: the primitive's own abstract state);
     - ``steps`` (primitive steps ``N``), ``time`` (duration ``tau``), ``reward`` (external
       reward), ``disc_reward`` (``sum gamma^t r``), ``internal`` (discounted shaping reward);
     - ``greedy`` (the child and every ancestor's choice were greedy), ``own_greedy``;
     - ``inv_steps``: primitive steps of the level's own invocation (the guard);
-    - ``vis_state``, ``vis_steps``, ``vis_time`` ``[B, W, L]``: the last ``L`` states visited
+    - ``vis_state``, ``vis_steps``, ``vis_time`` ``[B, D, L]``: the last ``L`` states visited
       during the child (all-states updating);
-    - ``start_features`` ``[B, W, F]``: the node's features where the child started.
+    - ``start_features`` ``[B, D, F]``: the node's features where the child started;
+    - ``score_index``, ``score_value`` ``[B, D, K]``: the likelihood-ratio term of the child's
+      choice, as a sparse increment into a policy-gradient learner's parameters (PG nodes).
 
     Per row: ``top [B]`` (level on top, -1: empty), ``done [B]`` (the episode ended at the last
     step; the row waits for its reset), ``cont_action [B, A]`` (the action vector of the
@@ -55,37 +57,51 @@ class TaskStack:
     vis_steps: torch.Tensor
     vis_time: torch.Tensor
     start_features: torch.Tensor
+    score_index: torch.Tensor
+    score_value: torch.Tensor
     top: torch.Tensor
     done: torch.Tensor
     cont_action: torch.Tensor
     memory: torch.Tensor
 
     @classmethod
-    def empty(cls, graph: TaskGraph, batch: int, visits: int = 1) -> TaskStack:
-        """Empty stacks for ``batch`` rows of ``graph`` keeping ``visits`` visited states."""
+    def empty(
+        cls, graph: TaskGraph, batch: int, visits: int = 1, score_width: int = 0
+    ) -> TaskStack:
+        """Empty stacks for ``batch`` rows of ``graph``.
+
+        Args:
+            graph: the task graph (its device is the stacks').
+            batch: rows ``B``.
+            visits: visited states kept per level (all-states updating).
+            score_width: nonzeros of one choice's likelihood-ratio term (PG learners; 0: none).
+        """
         dev = graph.node_children.device
-        b, w = batch, graph.max_levels + 1
+        b, d = batch, graph.max_levels
 
         def zeros(*shape, dtype=torch.float32):
             return torch.zeros(b, *shape, dtype=dtype, device=dev)
 
         long, flag = torch.long, torch.bool
+        k = max(score_width, 1)
         return cls(
-            inst=torch.full((b, w), -1, dtype=long, device=dev),
-            child=zeros(w, dtype=long),
-            start_state=zeros(w, dtype=long),
-            steps=zeros(w, dtype=long),
-            time=zeros(w),
-            reward=zeros(w),
-            disc_reward=zeros(w),
-            internal=zeros(w),
-            greedy=torch.ones(b, w, dtype=flag, device=dev),
-            own_greedy=torch.ones(b, w, dtype=flag, device=dev),
-            inv_steps=zeros(w, dtype=long),
-            vis_state=zeros(w, visits, dtype=long),
-            vis_steps=zeros(w, visits, dtype=long),
-            vis_time=zeros(w, visits),
-            start_features=zeros(w, max(graph.max_features, 1)),
+            inst=torch.full((b, d), -1, dtype=long, device=dev),
+            child=zeros(d, dtype=long),
+            start_state=zeros(d, dtype=long),
+            steps=zeros(d, dtype=long),
+            time=zeros(d),
+            reward=zeros(d),
+            disc_reward=zeros(d),
+            internal=zeros(d),
+            greedy=torch.ones(b, d, dtype=flag, device=dev),
+            own_greedy=torch.ones(b, d, dtype=flag, device=dev),
+            inv_steps=zeros(d, dtype=long),
+            vis_state=zeros(d, visits, dtype=long),
+            vis_steps=zeros(d, visits, dtype=long),
+            vis_time=zeros(d, visits),
+            start_features=zeros(d, max(graph.max_features, 1)),
+            score_index=torch.full((b, d, k), -1, dtype=long, device=dev),
+            score_value=zeros(d, k),
             top=torch.full((b,), -1, dtype=long, device=dev),
             done=zeros(dtype=flag),
             cont_action=zeros(max(graph.action_dim, 1)),
@@ -93,11 +109,13 @@ class TaskStack:
             batch_size=[b],
         )
 
-    def clear(self) -> None:
-        """Empty every stack (every row starts at the root on the next push)."""
-        self.top.fill_(-1)
-        self.inst.fill_(-1)
-        self.done.zero_()
+    def cleared(self) -> TaskStack:
+        """These stacks emptied: every row starts at the root on the next push."""
+        out = self.clone(recurse=False)
+        out.top = torch.full_like(self.top, -1)
+        out.inst = torch.full_like(self.inst, -1)
+        out.done = torch.zeros_like(self.done)
+        return out
 
     def describe(self, graph: TaskGraph, row: int) -> str:
         """Row ``row``'s stack from the root to the top, e.g. ``Root/Get/Navigate_R/North``."""
@@ -110,8 +128,8 @@ class TaskStack:
         """Every field (cloned), for exact resume."""
         return {k: v.clone() for k, v in self.to_dict().items()}
 
-    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        """Restore ``state_dict`` of stacks of the same shape (nothing changes on a mismatch)."""
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> TaskStack:
+        """A stack with ``state_dict``'s fields, which must have this stack's shapes."""
         mine = self.to_dict()
         if set(state) != set(mine):
             raise ValueError(f"Task-Stack fields {sorted(state)} != {sorted(mine)}")
@@ -121,5 +139,15 @@ class TaskStack:
                     f"Task-Stack field {k!r} has shape {tuple(v.shape)}, "
                     f"expected {tuple(mine[k].shape)}"
                 )
-        for k, v in state.items():
-            setattr(self, k, v.to(mine[k].device).clone())
+        fields = {k: v.to(mine[k].device).clone() for k, v in state.items()}
+        return type(self)(**fields, batch_size=self.batch_size)
+
+    # -- fast access for the executor's hot path (a tensorclass attribute costs about 1-2 us)
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """The fields as a new plain dict (the tensors are shared, not copied)."""
+        return dict(self._tensordict._tensordict)
+
+    @classmethod
+    def from_tensors(cls, tensors: dict[str, torch.Tensor], batch: int) -> TaskStack:
+        """A stack of ``batch`` rows made of ``tensors`` (as ``tensors()`` returns), unchecked."""
+        return cls._from_tensordict(TensorDict._new_unsafe(tensors, batch_size=torch.Size([batch])))

@@ -195,3 +195,59 @@ class TableBank(nn.Module):
         self._count.index_fill_(0, index, 0.0)
         self._sum.index_fill_(0, index, 0.0)
         return n, total
+
+
+class EvalPlan(nn.Module):
+    """Static indices of a layout's bottom-up evaluation, computed once.
+
+    The non-primitive tables in bottom-up order (``order [Tc]``, leaves' parents first), so
+    that each height group is a contiguous slice ``bounds[k] = (start, end)``: a learner reads
+    the rows of all of them at once (one ``index_select`` per bank) and evaluates group by
+    group on slices.
+
+    Buffers: ``order [Tc]`` table ids, ``node [Tc]`` their graph nodes, ``child_table [Tc, A]``
+    the children's table ids (padding: 0), ``child_valid [Tc, A]``, ``inst_pos [I]`` the
+    position in ``order`` of each instance's table (0 for primitives), ``prims [Tp]`` the
+    primitive tables and ``prim_node [Tp]`` their nodes.
+    """
+
+    def __init__(self, graph: TaskGraph, layout: TableLayout) -> None:
+        super().__init__()
+        groups = layout.groups[1:]
+        order = torch.cat(groups) if groups else torch.zeros(0, dtype=torch.long)
+        sizes = [len(g) for g in groups]
+        starts = [sum(sizes[:k]) for k in range(len(sizes))]
+        self.bounds = [(s, s + n) for s, n in zip(starts, sizes, strict=True)]
+        pos = torch.zeros(layout.n_tables, dtype=torch.long)
+        pos[order] = torch.arange(len(order))
+        prims = layout.groups[0]
+        for name, value in (
+            ("order", order),
+            ("node", layout.table_node[order]),
+            ("child_table", layout.table_children[order].clamp_min(0)),
+            ("child_valid", layout.table_child_valid[order]),
+            ("inst_pos", pos[layout.inst_table]),
+            ("prims", prims),
+            ("prim_node", layout.table_node[prims]),
+        ):
+            self.register_buffer(name, value, persistent=False)
+        self.register_buffer("cols", torch.arange(layout.max_children), persistent=False)
+        self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def offsets(self, bank: TableBank) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(offset [Tc], n_cols [Tc])`` of ``bank``'s blocks in plan order (cached)."""
+        key = id(bank)
+        cached = self._offsets.get(key)
+        if cached is None or cached[0].device != self.order.device:
+            cached = (bank.offset[self.order], bank.n_cols[self.order])
+            self._offsets[key] = cached
+        return cached
+
+    def row_index(self, bank: TableBank, learner: torch.Tensor, state: torch.Tensor):
+        """Flat indices ``[B, Tc, A]`` of the rows of every planned table.
+
+        ``learner [B]``; ``state [B, Tc]`` the tables' abstract states.
+        """
+        offset, n_cols = self.offsets(bank)
+        base = (learner * bank.total)[:, None] + offset + state * n_cols
+        return base[..., None] + self.cols

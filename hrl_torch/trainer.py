@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import torch
+from tensordict import TensorDict
 from tqdm import tqdm
 
 from hrl_torch.agent import HierarchicalAgent
@@ -90,6 +91,8 @@ class Trainer:
         evaluator: replaces the episodic evaluation, e.g. a
             ``hrl_torch.continuing.ThroughputEvaluator`` for continuing tasks; it also sees
             every training step (``observe``) and adds its metrics at each log (``flush``).
+        collector: step the env through a TorchRL ``Collector`` and learn from its frames
+            (``hrl_torch.collector``); the same tables as the direct loop.
     """
 
     def __init__(
@@ -103,8 +106,13 @@ class Trainer:
         executor_config: ExecutorConfig | None = None,
         logger: RunLogger | None = None,
         evaluator=None,
+        collector: bool = False,
     ) -> None:
         self.env, self.graph, self.learner = env, graph, learner
+        self.collector = collector
+        self._source = None  # the collector path's frames (created at the first step)
+        self._steps = None
+        self._resume_obs = None
         self.evaluator = evaluator
         self.config = config or TrainConfig()
         self.executor_config = executor_config or ExecutorConfig()
@@ -153,14 +161,37 @@ class Trainer:
 
     def train_step(self) -> None:
         """One batched step: every row takes one primitive action, the learner updates."""
-        if self.action is None:
-            self.action = self.agent.start(self.env.reset())
-        td = self.env.step(self.action)
-        self.action = self.agent.step(td)
+        td, batch = self._collected_step() if self.collector else self._direct_step()
+        if self.agent.learn:
+            self.agent.update(batch)
         self._episodes.add(td)
         self.real_steps.index_add_(0, self.rows.cpu(), (~td["is_init"]).cpu().double())
         if self.evaluator is not None:  # continuing tasks: training throughput
             self.evaluator.observe(td, self.rows, self.P)
+
+    def _direct_step(self):
+        """``env.step`` and ``agent.decide``: the step's output and its transitions."""
+        if self.action is None:
+            self.action = self.agent.start(self.env.reset())
+        td = self.env.step(self.action)
+        self.action, batch = self.agent.decide(td)
+        return td, batch
+
+    def _collected_step(self):
+        """The next frame of the TorchRL collector: the step's output and its transitions."""
+        if self._steps is None:
+            from hrl_torch.collector import CollectorSource  # TorchRL only on this path
+
+            self._source = CollectorSource(self.env, self.agent, self._resume_obs)
+            self._steps = self._source.steps()
+            self._resume_obs = None
+        return next(self._steps)
+
+    def close(self) -> None:
+        """Stop the collector of the collector path (if one runs)."""
+        if self._source is not None:
+            self._source.shutdown()
+            self._source = self._steps = None
 
     def train(self, steps: int | None = None, run_dir=None) -> TrainResult:
         """Train until ``steps`` env steps per learner (default ``config.steps``)."""
@@ -320,6 +351,7 @@ class Trainer:
             "executor": self.executor.state_dict(),
             "explore_rng": self.policy.rng.state_dict(),
             "action": self.action if self.action is not None else torch.zeros(0),
+            "collector": self._pending_obs(),
             "episodes": self._episodes.state_dict(),
             "curve": [[s, list(v)] for s, v in self.curve],
             "first_hit": [-1 if h is None else h for h in self.first_hit],
@@ -359,6 +391,15 @@ class Trainer:
             self._eval_rng().load_state_dict(state["eval_rng"])
         action = state["action"]
         self.action = None if action.numel() == 0 else action.clone()
+        pending = state.get("collector") or {}
+        if self.collector != bool(pending) and int(state["step"]) > 0:
+            raise ValueError(
+                "a checkpoint of the direct loop cannot continue on the collector path, "
+                "nor the other way round"
+            )
+        self.close()
+        b = [self.env.batch_size]
+        self._resume_obs = TensorDict(pending, batch_size=b) if pending else None
         if not state["env"]:  # an env that cannot be checkpointed (gymnasium): new episodes
             self.action = None
         self.step = int(state["step"])
@@ -371,6 +412,14 @@ class Trainer:
         if last.get("success"):  # the latest evaluation's details (a finished run resumed)
             self._last_success = [float(x) for x in last["success"]]
             self._last_steps = [float(x) for x in last["steps"]]
+
+    def _pending_obs(self) -> dict:
+        """Collector path: the domain output the agent acts on next (empty: direct loop)."""
+        if not self.collector:
+            return {}
+        if self._source is not None:
+            return self._source.pending.to_dict()
+        return {} if self._resume_obs is None else self._resume_obs.to_dict()
 
     def save(self, path) -> None:
         """Write a checkpoint of this trainer."""

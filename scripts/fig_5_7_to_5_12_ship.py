@@ -40,7 +40,7 @@ from agents.ship import (
 )
 from envs.ship import FIGURE_5_12_STARTS, ShipSteeringEnv
 from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.collector import HierarchicalPolicy, collect
+from hrl_torch.collector import collect
 from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Greedy
 from hrl_torch.rng import BatchRNG
@@ -100,9 +100,9 @@ def train(algo: str, args: Args, out: Path) -> dict:
     graph = GRAPHS[algo](params.out_of_bounds_reward)
     learner = MAKERS[algo](graph, len(seeds), params)
     env = ShipSteeringEnv(seeds, envs)
-    policy = HierarchicalPolicy(
-        graph, learner, spec.make_exploration(spec.train), env, spec.executor
-    )
+    rng = BatchRNG(seeds, envs, "explore")
+    exploration = spec.make_exploration(spec.train)
+    agent = HierarchicalAgent(graph, learner, exploration, rng, envs, spec.executor)
     monitor = learner.monitor
     last = [0.0]
 
@@ -121,11 +121,10 @@ def train(algo: str, args: Args, out: Path) -> dict:
     print(f"{algo}: {len(seeds)} seeds x {envs} envs, {args.episodes} episodes per seed")
     stats = collect(
         env,
-        policy,
+        agent,
         until=lambda: bool((monitor.episodes.events >= args.episodes).all()),
-        steps_per_batch=32,
         max_seconds=None if args.max_minutes is None else 60 * args.max_minutes,
-        on_iteration=progress,
+        on_step=progress,
     )
     result = {
         "algo": algo,

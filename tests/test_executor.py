@@ -3,6 +3,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hrl_torch.agent import with_values
 from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
 from hrl_torch.exploration import EpsilonGreedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -33,7 +34,7 @@ def run_checked(graph, env, steps, check_step):
         learner.evaluate(ctx)
         batch = ex.observe(td, ctx)
         check_step("observe", ex, ctx, td, batch, before)
-        learner.update(batch, ctx, 0)
+        learner.update(with_values(batch, ctx), 0)
         ex.act(ctx, policy, 0)
         check_step("act", ex, ctx, td, None, None)
 

@@ -26,7 +26,7 @@ def test_masked_argmax_and_uniform_choice_respect_availability():
     q = torch.tensor([[5.0, 1.0, 9.0], [5.0, 1.0, 9.0]])
     avail = torch.tensor([[True, True, False], [False, True, False]])
     assert masked_argmax(q, avail).tolist() == [0, 1]
-    u = torch.rand(1000)
+    u = torch.rand(1000, 4)
     picks = uniform_choice(torch.tensor([[False, True, False, True]]).expand(1000, 4), u)
     assert set(picks.tolist()) == {1, 3}
     assert 400 < int((picks == 1).sum()) < 600

@@ -37,10 +37,11 @@ import torch
 from torch import nn
 
 from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule, masked_argmax
+from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.three_part import ThreePartLearner
+from hrl_torch.ops import columns
 
 
 class GainEstimate(nn.Module):
@@ -128,10 +129,10 @@ class HARLearner(ThreePartLearner):
         prim = batch[PRIMITIVE]
         return prim["reward"] - self.gain[batch["learner"]] * self.primitive_time(batch)
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Lines 5, 17-21 (all with the gain ``g_t``), then the gain (lines 6-7)."""
         prim = batch[PRIMITIVE]
-        super().update(batch, ctx, step)
+        super().update(batch, step)
         seen = prim["valid"] & prim["greedy"]  # M_i and its ancestors non-random
         self.gains.add(batch["learner"], 0, prim["reward"], self.primitive_time(batch), seen)
 
@@ -173,31 +174,19 @@ class RARLearner(TabularLearner):
         return self.gains.gain
 
     def evaluate(self, ctx: StepContext) -> None:
-        """Bottom-up ``H^(i, s) = max_a L^(i, s, a)`` (Eqs. 4.17-4.19) for every table."""
-        lay = self.layout
-        value = torch.zeros(ctx.abstract.shape[0], lay.n_tables, device=ctx.abstract.device)
-        prims = lay.groups[0]
-        idx = self.V.index(ctx.learner[:, None], prims[None, :], self.table_states(ctx, prims), 0)
-        value[:, prims] = self.V.read(idx)
-        zero = torch.zeros((), device=value.device)
-        for ids in lay.groups[1:]:
-            nodes = lay.table_node[ids]
-            available = ctx.available[:, nodes]
-            q = value[:, lay.table_children[ids].clamp_min(0)] + self.table_rows(
-                self.C, ctx, ids, available
-            )
-            best = masked_argmax(q, available).unsqueeze(-1)
-            dead = ctx.blocked[:, nodes] | ~available.any(-1)
-            value[:, ids] = torch.where(dead, zero, q.gather(-1, best).squeeze(-1))
+        """Bottom-up ``H^(i, s) = max_a L^(i, s, a)`` (Eqs. 4.17-4.19) and the rows ``L^``."""
+        available, dead, (c,) = self.composite_rows(ctx, self.C)
+        value = self.primitive_values(ctx, self.V)
+        q_rows = []
+        for part, ids in self.groups():
+            q = columns(value, self.plan.child_table[part]) + c[:, part]
+            best = torch.where(available[:, part], q, -torch.inf).amax(-1)
+            value.index_copy_(1, ids, torch.where(dead[:, part], 0.0, best))
+            q_rows.append(q)
         ctx.values["H"] = value
+        ctx.values["Q"] = torch.cat(q_rows, 1)
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``L^(i, s, .) = H^(., s) + C(i, s, .)`` for the instances ``inst [B]``."""
-        c, table = self.instance_rows(self.C, ctx, inst)
-        children = self.layout.table_children[table].clamp_min(0)
-        return ctx.values["H"].gather(1, children) + c
-
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Lines 5, 18/20 (with the gains ``g_t``), then the gains (lines 23-24)."""
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         alpha = self.alpha(step)
@@ -212,7 +201,7 @@ class RARLearner(TabularLearner):
         gains = self.gain
         g_i = gains[learner, table]
         g_a = torch.where(lay.table_is_primitive[child_table], 0.0, gains[learner, child_table])
-        h_next = ctx.values["H"].gather(1, table)
+        h_next = batch["values", "H"].gather(1, table)
         h_next = torch.where(terminal, torch.zeros_like(h_next), h_next)  # dummy state: 0
         target = h_next - (g_i - g_a) * t
         idx = self.C.index(learner, table, level["state"], level["child"])

@@ -6,7 +6,8 @@ A learner is an update rule over batches of SMDP transitions (see ``hrl_torch.ex
   need at the current observations and stores them in ``ctx.values``;
 - ``action_values(inst, ctx)`` returns the values ``[B, A]`` of the children of the instances
   ``inst [B]`` that exploration chooses from;
-- ``update(batch, ctx, step)`` applies one batch of transitions whose ``s'`` is ``ctx.obs``.
+- ``update(batch, step)`` applies one batch of transitions (``hrl_torch.agent``): their
+  ``batch["values"]`` holds what ``evaluate`` computed at ``s'``, ``batch["obs"]`` is ``s'``.
 
 Learners never step envs and never touch the Task-Stack.
 """
@@ -16,13 +17,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
+from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
-from hrl_torch.ops import columns, lookup
+from hrl_torch.ops import at_rows, columns, lookup
 from hrl_torch.rng import BatchRNG
-from hrl_torch.tables import TableBank, TableLayout
+from hrl_torch.tables import EvalPlan, TableBank, TableLayout
 from hrl_torch.validate import check_fraction, check_step_size
 
 
@@ -47,8 +48,8 @@ class Learner(nn.Module):
         """Values ``[B, A]`` of the children of ``inst [B]`` (padding slots are ignored)."""
         raise NotImplementedError
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
-        """Learn from one batch of transitions ending in ``ctx.obs``."""
+    def update(self, batch, step: int) -> None:
+        """Learn from one batch of transitions (values at ``s'`` in ``batch["values"]``)."""
         raise NotImplementedError
 
     def record_td(
@@ -63,6 +64,11 @@ class Learner(nn.Module):
 
 class TabularLearner(Learner):
     """Shared machinery of the tabular value learners: layout, banks and the step size.
+
+    Every step a tabular learner reads the rows of all its non-primitive tables at the current
+    states with one gather per bank (``composite_rows``), evaluates them bottom-up over height
+    groups (``self.plan``), and keeps the rows its choices read in ``ctx.values["Q"]``
+    ``[B, Tc, A]`` (``action_values`` gathers them per instance).
 
     Args:
         graph: the task graph.
@@ -86,6 +92,7 @@ class TabularLearner(Learner):
         self.alpha = as_schedule(alpha)
         self.gamma = float(gamma)
         self.layout = TableLayout(graph, per_instance)
+        self.plan = EvalPlan(graph, self.layout)
         self.continuous = False  # continuous-time learners measure time by durations
 
     def completion_bank(self, init: float = 0.0) -> TableBank:
@@ -100,43 +107,45 @@ class TabularLearner(Learner):
         n_states = torch.where(lay.table_is_primitive, lay.table_n_states, 0)
         return TableBank(self.n_learners, n_states, torch.ones_like(n_states), init)
 
-    def table_states(self, ctx: StepContext, tables: torch.Tensor) -> torch.Tensor:
-        """Abstract states ``[B, n]`` of the table nodes ``tables [n]``."""
-        return columns(ctx.abstract, lookup(self.layout.table_node, tables))
+    # ------------------------------------------------------------------ evaluation
+    def composite_rows(self, ctx: StepContext, *banks: TableBank, tables=None):
+        """The planned tables' rows at ``ctx``: ``(available, dead, rows of each bank)``.
 
-    def table_rows(
-        self, bank: TableBank, ctx: StepContext, tables: torch.Tensor, available: torch.Tensor
-    ) -> torch.Tensor:
-        """Rows ``[B, n, A]`` of ``bank`` for tables ``[n]`` at ``ctx``; unavailable read 0."""
-        idx = bank.row_index(
-            ctx.learner[:, None],
-            tables[None, :],
-            self.table_states(ctx, tables),
-            self.layout.max_children,
-        )
-        return bank.read(idx, available)
-
-    def instance_index(
-        self, bank: TableBank, ctx: StepContext, inst: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Row index ``[B, A]`` into ``bank`` for the instances ``inst [B]``, and their tables.
-
-        Banks built alike (``completion_bank``) share the index.
+        ``available [B, Tc, A]``: children available (padding False); ``dead [B, Tc]``: the
+        table's state is terminal for it or nothing is available (its value is 0); each bank's
+        rows ``[B, Tc, A]`` (unavailable entries read 0). Tables in ``self.plan`` order;
+        ``tables [Tc]`` bool: only these have entries in the banks (the others read 0).
         """
-        lay = self.layout
-        table = lookup(lay.inst_table, inst.clamp_min(0))
-        state = ctx.abstract.gather(1, lookup(lay.table_node, table)[:, None]).squeeze(1)
-        return bank.row_index(ctx.learner, table, state, lay.max_children), table
+        plan = self.plan
+        available = columns(ctx.available, plan.node)  # padding slots are never available
+        dead = columns(ctx.blocked, plan.node) | ~available.any(-1)
+        state = columns(ctx.abstract, plan.node)
+        read = available if tables is None else available & tables[:, None]
+        rows = [bank.read(plan.row_index(bank, ctx.learner, state), read) for bank in banks]
+        return available, dead, rows
 
-    def instance_rows(
-        self, bank: TableBank, ctx: StepContext, inst: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rows ``[B, A]`` of ``bank`` for the instances ``inst [B]`` and their tables ``[B]``.
+    def primitive_values(self, ctx: StepContext, bank: TableBank) -> torch.Tensor:
+        """``[B, T]``: ``bank``'s values of the primitive tables at ``ctx`` (0 elsewhere)."""
+        plan, lay = self.plan, self.layout
+        state = columns(ctx.abstract, plan.prim_node)
+        idx = bank.index(ctx.learner[:, None], plan.prims, state, 0)
+        value = torch.zeros(ctx.abstract.shape[0], lay.n_tables, device=ctx.abstract.device)
+        return value.index_copy_(1, plan.prims, bank.read(idx))
 
-        Padding slots (beyond a node's children) read 0.
-        """
-        idx, table = self.instance_index(bank, ctx, inst)
-        return bank.read(idx, lookup(self.layout.table_child_valid, table)), table
+    def groups(self):
+        """``(slice into plan order, table ids [G])`` per height group, bottom-up."""
+        for start, end in self.plan.bounds:
+            yield slice(start, end), self.plan.order[start:end]
+
+    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
+        """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``."""
+        return at_rows(ctx.values["Q"], lookup(self.plan.inst_pos, inst))
+
+    # ------------------------------------------------------------------ updates
+    def table_index(self, bank: TableBank, learner, inst, state, col) -> torch.Tensor:
+        """Flat indices into ``bank`` of ``(instance's table, state, col)`` (broadcast)."""
+        table = lookup(self.layout.inst_table, inst.clamp_min(0))
+        return bank.index(learner, table, state, col)
 
     def attach_heads(self, **banks: TableBank) -> None:
         """Heads (``self.heads``) naming every table node's block of each of ``banks``."""
@@ -158,9 +167,9 @@ class TabularLearner(Learner):
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.
 
-    Every step reserves one draw number per push level (``new_step``), and the ``k``-th push of
-    a step reads draw ``k``: a row's random stream never depends on how many pushes other rows
-    needed, so a population equals separate runs.
+    Every step draws one block of uniforms per push level (``new_step``), and the ``k``-th push
+    of a step reads block ``k``: a row's random stream never depends on how many pushes other
+    rows needed, so a population equals separate runs.
 
     Args:
         learner: provides ``action_values``.
@@ -172,16 +181,17 @@ class ValuePolicy:
         self.learner = learner
         self.exploration = exploration
         self.rng = rng
-        self._first = 0
+        self.width = uniforms_needed(learner.graph.max_children)
+        self._u = None
 
     def new_step(self) -> None:
-        """Reserve this step's draws, one per push level."""
-        self._first = self.rng.reserve(self.learner.graph.max_levels)
+        """Draw this step's uniforms ``[B, levels, width]``."""
+        levels = self.learner.graph.max_levels
+        self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(child slot [B], greedy flag [B])`` for the ``push``-th push of the step."""
+    ) -> Choice:
+        """The choices of the ``push``-th push of the step."""
         q = self.learner.action_values(inst, ctx)
-        u = self.rng.uniform(uniforms_needed(q.shape[-1]), counter=self._first + push)
-        return self.exploration.select(q, available, u, step)
+        return Choice(*self.exploration.select(q, available, self._u[:, push], step))

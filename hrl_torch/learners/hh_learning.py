@@ -27,6 +27,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.average_reward import GainEstimate
 from hrl_torch.learners.base import TabularLearner
+from hrl_torch.ops import columns
 from hrl_torch.tables import TableBank
 
 
@@ -87,14 +88,17 @@ class HHLearner(TabularLearner):
         return self.gains.gain[:, 0]
 
     def evaluate(self, ctx: StepContext) -> None:
-        """Bottom-up backups ``max_a [H(a, s) + E H(i, s')]`` (Eq. 4.12) at ``ctx``."""
-        lay = self.layout
+        """Bottom-up backups ``max_a [H(a, s) + E H(i, s')]`` (Eq. 4.12) at ``ctx``.
+
+        ``ctx.values``: ``H`` ``[B, T]``, the rows ``Q`` ``[B, Tc, A]`` (plan order) and
+        ``H_index`` ``[B, Tc]``, where each subtask's backup goes (``update``).
+        """
+        lay, plan = self.layout, self.plan
         b, dev = ctx.abstract.shape[0], ctx.abstract.device
         learner = ctx.learner[:, None]
         value = torch.zeros(b, lay.n_tables, device=dev)
-        q_all = torch.zeros(b, lay.n_tables, lay.max_children, device=dev)
-        prims = lay.groups[0]
-        idx = self.prim_count.index(learner, prims[None, :], self.table_states(ctx, prims), 0)
+        prims = plan.prims
+        idx = self.prim_count.index(learner, prims, columns(ctx.abstract, plan.prim_node), 0)
         count = self.prim_count.read(idx)
         r = self.prim_reward.read(idx) / count.clamp_min(1.0)
         tau = self.prim_time.read(idx) / count.clamp_min(1.0)
@@ -104,16 +108,16 @@ class HHLearner(TabularLearner):
         value[:, prims] = torch.where(count > 0, h, 0.0)  # no data yet: 0
         outcome = torch.arange(self.width, device=dev)
         child = torch.arange(lay.max_children, device=dev)
-        zero = torch.zeros((), device=dev)
-        for ids in lay.groups[1:]:
-            nodes = lay.table_node[ids]
-            available = ctx.available[:, nodes]
+        q_rows = []
+        for part, ids in self.groups():
+            nodes = plan.node[part]
+            available = columns(ctx.available, nodes)
             n_out = self.outcomes[ids][None, :, None]
             # H(i, s') for every outcome s' (the last one, "terminated", is worth 0)
             h_ok = outcome[None, None, :] < n_out - 1
             h_idx = self.H.index(learner[..., None], ids[None, :, None], outcome, 0)
             h_next = self.H.read(h_idx.expand(b, -1, -1), h_ok.expand(b, -1, -1))
-            state = self.table_states(ctx, ids)
+            state = columns(ctx.abstract, nodes)
             m_ok = (outcome < n_out[..., None]) & available[..., None]
             col = child[None, None, :, None] * n_out[..., None] + outcome
             m_idx = self.model.index(
@@ -122,24 +126,21 @@ class HHLearner(TabularLearner):
             counts = self.model.read(m_idx, m_ok.expand(b, -1, -1, -1))  # [B, n, A, W]
             total = counts.sum(-1)
             cont = (counts * h_next[:, :, None, :]).sum(-1) / total.clamp_min(1.0)
-            q = value[:, lay.table_children[ids].clamp_min(0)] + cont
+            q = value[:, plan.child_table[part]] + cont
             best = torch.where(available, q, -torch.inf).amax(-1)
-            dead = ctx.blocked[:, nodes] | ~available.any(-1)
-            value[:, ids] = torch.where(dead, zero, best)
-            q_all[:, ids] = q
+            dead = columns(ctx.blocked, nodes) | ~available.any(-1)
+            value[:, ids] = torch.where(dead, 0.0, best)
+            q_rows.append(q)
         ctx.values["H"] = value
-        ctx.values["Q"] = q_all
+        ctx.values["Q"] = torch.cat(q_rows, 1)
+        state = columns(ctx.abstract, plan.node)
+        ctx.values["H_index"] = self.H.index(learner, plan.order, state, 0)
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``H(a, s) + E H(i, s')`` for the children of ``inst [B]``."""
-        table = self.layout.inst_table[inst.clamp_min(0)]
-        return ctx.values["Q"][torch.arange(len(table), device=table.device), table]
-
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Back up the states every subtask is in, then add the batch to the models and gain."""
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         lay = self.layout
-        self._backup(ctx)
+        self._backup(batch["values"])
         # the model of every finished child: counts of (s, a) -> s' (or "terminated")
         inst = level["inst"]
         table = lay.inst_table[inst.clamp_min(0)]
@@ -163,11 +164,9 @@ class HHLearner(TabularLearner):
         greedy = seen & prim["greedy"]
         self.gains.add(batch["learner"], 0, prim["reward"], self.primitive_time(batch), greedy)
 
-    def _backup(self, ctx: StepContext) -> None:
-        """``H(i, s) <- max_a [...]`` for every subtask at the states of ``ctx`` (evaluated)."""
-        ids = self.layout.composite_ids()
-        learner = ctx.learner[:, None].expand(-1, len(ids))
-        h_idx = self.H.index(learner, ids[None, :], self.table_states(ctx, ids), 0)
-        backup = ctx.values["H"][:, ids]
+    def _backup(self, values) -> None:
+        """``H(i, s) <- max_a [...]`` for every subtask at the states it was evaluated at."""
+        index = values["H_index"]
+        backup = values["H"][:, self.plan.order]
         ok = torch.ones_like(backup, dtype=torch.bool)
-        self.H.update(h_idx.reshape(-1), backup.reshape(-1), 1.0, ok.reshape(-1))
+        self.H.update(index.reshape(-1), backup.reshape(-1), 1.0, ok.reshape(-1))

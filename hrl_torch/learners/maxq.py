@@ -66,35 +66,32 @@ class MaxQLearner(TabularLearner):
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:
-        """Bottom-up ``V(i, s)`` (external) and ``max_a Q~(i, s, a)`` for every table node."""
-        lay = self.layout
-        b = ctx.abstract.shape[0]
-        value = torch.zeros(b, lay.n_tables, device=ctx.abstract.device)
-        value_int = torch.zeros_like(value)
-        prims = lay.groups[0]
-        idx = self.V.index(ctx.learner[:, None], prims[None, :], self.table_states(ctx, prims), 0)
-        value.index_copy_(1, prims, self.V.read(idx))
-        value_int.index_copy_(1, prims, self.V.read(idx))
-        for ids in lay.groups[1:]:
-            nodes = lookup(lay.table_node, ids)
-            available = columns(ctx.available, nodes)
-            child_v = columns(value, lookup(lay.table_children, ids).clamp_min(0))
-            c = self.table_rows(self.C, ctx, ids, available)
-            c_int = self.table_rows(self.C_int, ctx, ids, available) if self.internal else c
-            q_int = child_v + c_int
-            best = masked_argmax(q_int, available).unsqueeze(-1)
-            dead = columns(ctx.blocked, nodes) | ~available.any(-1)
-            external = (child_v + c).gather(-1, best)[..., 0]
-            value.index_copy_(1, ids, torch.where(dead, 0.0, external))
-            value_int.index_copy_(1, ids, torch.where(dead, 0.0, q_int.gather(-1, best)[..., 0]))
+        """Bottom-up ``V(i, s)`` (external), ``max_a Q~(i, s, a)`` and the rows ``Q~(i, s, .)``.
+
+        ``ctx.values``: ``V``, ``V_int`` ``[B, T]``; ``Q`` ``[B, Tc, A]`` (plan order).
+        """
+        banks = (self.C, self.C_int) if self.internal else (self.C,)
+        available, dead, rows = self.composite_rows(ctx, *banks)
+        value = self.primitive_values(ctx, self.V)
+        value_int = value.clone() if self.internal else value
+        q_rows = []
+        for part, ids in self.groups():
+            child_v = columns(value, self.plan.child_table[part])
+            q_ext = child_v + rows[0][:, part]
+            q_int = child_v + rows[-1][:, part] if self.internal else q_ext
+            ok, gone = available[:, part], dead[:, part]
+            if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
+                best = masked_argmax(q_int, ok).unsqueeze(-1)
+                v_ext = q_ext.gather(-1, best).squeeze(-1)
+                v_int = q_int.gather(-1, best).squeeze(-1)
+                value_int.index_copy_(1, ids, torch.where(gone, 0.0, v_int))
+            else:
+                v_ext = torch.where(ok, q_ext, -torch.inf).amax(-1)
+            value.index_copy_(1, ids, torch.where(gone, 0.0, v_ext))
+            q_rows.append(q_int)
         ctx.values["V"] = value
         ctx.values["V_int"] = value_int
-
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``Q~(i, s, .) = V(., s) + C~(i, s, .)`` for the instances ``inst [B]``."""
-        c_int, table = self.instance_rows(self.C_int, ctx, inst)
-        children = lookup(self.layout.table_children, table).clamp_min(0)
-        return ctx.values["V"].gather(1, children) + c_int
+        ctx.values["Q"] = torch.cat(q_rows, 1)
 
     # ------------------------------------------------------------------ updates
     @staticmethod
@@ -104,17 +101,16 @@ class MaxQLearner(TabularLearner):
         internal = internal + discount * torch.where(terminal, pseudo, v_next_int)
         return external, internal
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Dietterich's MAXQ-Q updates for every finished child and primitive in ``batch``."""
-        level, prim = batch[LEVEL], batch[PRIMITIVE]
+        level, prim, values = batch[LEVEL], batch[PRIMITIVE], batch["values"]
         alpha = self.alpha(step)
-        lay = self.layout
-        learner = batch["learner"][:, None].expand_as(level["inst"])
-        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
+        learner = batch["learner"][:, None]
+        table = lookup(self.layout.inst_table, level["inst"].clamp_min(0))
         terminal = level["terminal"]
         valid = level["valid"] & (level["child_done"] | terminal)
-        v_next = ctx.values["V"].gather(1, table)
-        v_next_int = ctx.values["V_int"].gather(1, table)
+        v_next = values["V"].gather(1, table)
+        v_next_int = values["V_int"].gather(1, table) if self.internal else v_next
         target, target_int = self.targets(
             discount(self.gamma, level["duration"]),
             level["internal_reward"],
@@ -125,9 +121,9 @@ class MaxQLearner(TabularLearner):
         )
         idx = self.C.index(learner, table, level["state"], level["child"])
         self.record_td(learner, level["node"], target_int - self.C_int.read(idx, valid), valid)
-        self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
+        self.C.update(idx.view(-1), target.view(-1), alpha, valid.view(-1))
         if self.internal:
-            self.C_int.update(idx.reshape(-1), target_int.reshape(-1), alpha, valid.reshape(-1))
+            self.C_int.update(idx.view(-1), target_int.view(-1), alpha, valid.view(-1))
         if self.all_states and "visited_state" in level.keys():
             # every state s_k the child passed through gets the target discounted from s_k
             late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
@@ -150,6 +146,5 @@ class MaxQLearner(TabularLearner):
             if self.internal:
                 self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
 
-        prim_table = lookup(lay.inst_table, prim["inst"].clamp_min(0))
-        pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
+        pidx = self.table_index(self.V, batch["learner"], prim["inst"], prim["state"], 0)
         self.V.update(pidx, prim["reward"], alpha, prim["valid"])

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
+from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Schedule, as_schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
@@ -236,8 +236,6 @@ class HPGRLLearner(Learner):
             long = dict(dtype=torch.long, device=device)
             rows.clear()
             rows.update(
-                pending_index=torch.full((b, s + 1, w), self.sentinel, **long),
-                pending_value=torch.zeros(b, s + 1, w, device=device),
                 index=torch.full((b, s, k + 1, w), self.sentinel, **long),
                 value=torch.zeros(b, s, k + 1, w, device=device),
                 reward=torch.zeros(b, s, k + 1, device=device),
@@ -245,8 +243,13 @@ class HPGRLLearner(Learner):
             )
         return rows
 
+    @property
+    def score_width(self) -> int:
+        """Nonzeros of one choice's likelihood-ratio term (the executor keeps them per level)."""
+        return self.width
+
     def get_extra_state(self) -> dict:
-        """Eligibility traces and pending choices of the training rows (checkpoints)."""
+        """Eligibility traces of the training rows (checkpoints)."""
         return {k: v.clone() for k, v in self._rows.items()}
 
     def set_extra_state(self, state: dict) -> None:
@@ -262,25 +265,27 @@ class HPGRLLearner(Learner):
         u: torch.Tensor,
         greedy: bool = False,
         step: int = 0,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    ) -> Choice:
         """Choose children of PG instances ``inst [B]`` (other rows: ignored values).
 
         ``u [B, 3]`` uniforms (a softmax sample, two for a normal). Each node's head chooses
-        for its rows; with ``greedy`` it takes the mode and nothing is recorded, otherwise the
-        likelihood-ratio term of each choice is kept until the child ends (``update``). Only
-        the rows on PG nodes are computed.
-
-        Returns ``(child slot [B], greedy flag [B], action [B, 1] or None)``.
+        for its rows; with ``greedy`` it takes the mode, otherwise it samples and the choice
+        carries its likelihood-ratio term (``score_index``/``score_value``), which the executor
+        keeps on the stack until the child ends and hands to ``update`` with the transition.
+        Only the rows on PG nodes are computed.
         """
         g, b, dev = self.graph, inst.shape[0], inst.device
         choice = torch.zeros(b, dtype=torch.long, device=dev)
         flag = torch.full((b,), greedy, dtype=torch.bool, device=dev)
         action = torch.zeros(b, 1, device=dev) if self.has_gauss else None
+        index = torch.full((b, self.width), self.sentinel, dtype=torch.long, device=dev)
+        score = torch.zeros(b, self.width, device=dev)
+        out = Choice(choice, flag, action, None if greedy else index, None if greedy else score)
         node = lookup(g.inst_node, inst)
         rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)
         if rows.numel() == 0:
-            return choice, flag, action
-        inst, node, gid = inst[rows], node[rows], lookup(self.node_group, node[rows])
+            return out
+        node, gid = node[rows], lookup(self.node_group, node[rows])
         features = None
         if ctx.features is not None:
             f = ctx.features.shape[2]
@@ -293,16 +298,13 @@ class HPGRLLearner(Learner):
             u=u[rows],
             step=step,
         )
-        out = self._act_heads(inp, gid, greedy)
-        choice[rows], flag[rows] = out.child, out.greedy
-        if action is not None and out.action is not None:
-            action[rows, 0] = out.action
+        part = self._act_heads(inp, gid, greedy)
+        choice[rows], flag[rows] = part.child, part.greedy
+        if action is not None and part.action is not None:
+            action[rows, 0] = part.action
         if not greedy:
-            state = self._row_state(b, dev)
-            slot = lookup(self.depth_slot, lookup(g.inst_depth, inst))
-            state["pending_index"][rows, slot] = out.index
-            state["pending_value"][rows, slot] = out.score
-        return choice, flag, action
+            index[rows], score[rows] = part.index, part.score
+        return out
 
     def _act_heads(self, inp: PolicyInput, gid: torch.Tensor, greedy: bool) -> PolicyChoice:
         """Every batch of heads acts on its rows; the choices padded to ``width`` and merged."""
@@ -359,7 +361,7 @@ class HPGRLLearner(Learner):
                 r = r + torch.where(uses, fn(feats.reshape(-1, feats.shape[-1])).view_as(r), 0.0)
         return r
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Lines 11-16 of Algorithm 3 for every PG transition in ``batch``."""
         level = batch[LEVEL]
         cfg, depths = self.config, self.depths
@@ -375,13 +377,13 @@ class HPGRLLearner(Learner):
                 f"PG node {name!r} selected more than trace_len={k} children in one invocation; "
                 "raise PGConfig.trace_len or bound the subtask with the executor's guard"
             )
-        # line 14: z_{k+1} = z_k + grad mu / mu (the pending choice joins the invocation's ring)
+        # line 14: z_{k+1} = z_k + grad mu / mu (the ended child's choice joins the ring)
         pos = torch.where(valid, count, k)
         s = len(depths)
-        for key, src in (("index", "pending_index"), ("value", "pending_value")):
+        for key, src in (("index", "score_index"), ("value", "score_value")):
             ring = rows[key]
             at = pos.view(b, s, 1, 1).expand(-1, -1, 1, ring.shape[-1])
-            ring.scatter_(2, at, rows[src][:, :s, None, :])
+            ring.scatter_(2, at, level[src][:, depths, None, :])
         rows["reward"].scatter_(2, pos[..., None], r[..., None])
         count += valid
         ended = invocation_ended(batch, depths) & (count > 0)
@@ -452,25 +454,25 @@ class PGPolicy:
     """Executor policy of a pure-PG graph: each push samples from the node's policy.
 
     Args:
-        learner: the HPGRL learner (its ``select`` records the likelihood-ratio terms).
+        learner: the HPGRL learner (its ``select`` scores the choices).
         rng: random numbers for the rows.
-        greedy: act on the policies' modes and record nothing (evaluation).
+        greedy: act on the policies' modes and score nothing (evaluation).
     """
 
     def __init__(self, learner: HPGRLLearner, rng, greedy: bool = False) -> None:
         self.learner = learner
         self.rng = rng
         self.greedy = greedy
-        self._first = 0
+        self._u = None
 
     def new_step(self) -> None:
-        """Reserve this step's draws, one per push level."""
-        self._first = self.rng.reserve(self.learner.graph.max_levels)
+        """Draw this step's uniforms ``[B, levels, 3]``."""
+        levels = self.learner.graph.max_levels
+        self._u = self.rng.uniform(levels * 3).view(-1, levels, 3)
 
-    def select(self, inst, ctx, available, step, push):
-        """``(child slot, greedy flag, action)`` for the ``push``-th push of the step."""
-        u = self.rng.uniform(3, counter=self._first + push)
-        return self.learner.select(inst, ctx, available, u, self.greedy, step)
+    def select(self, inst, ctx, available, step, push) -> Choice:
+        """The choices of the ``push``-th push of the step."""
+        return self.learner.select(inst, ctx, available, self._u[:, push], self.greedy, step)
 
 
 class ActorCriticLearner(HPGRLLearner):
@@ -522,7 +524,7 @@ class ActorCriticLearner(HPGRLLearner):
         dims = self.critic.coder.resolution.numel() - 1
         return self.critic.tiles(learner, torch.cat([features[:, :dims], action.reshape(-1, 1)], 1))
 
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Critic SARSA(0) on the previous step, actor step on this one."""
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         b = batch.batch_size[0]
@@ -545,7 +547,10 @@ class ActorCriticLearner(HPGRLLearner):
         actor = self.actor
         q_mean = critic.value(self._q_tiles(learner, feats, squash(mean, actor.low, actor.high)))
         advantage = torch.where(valid, q - q_mean, 0.0)
-        slot0 = rows["pending_index"][:, 0], rows["pending_value"][:, 0]
+        slot0 = (
+            torch.where(valid[:, None], level["score_index"][:, 0], self.sentinel),
+            level["score_value"][:, 0],
+        )
         alpha = self.alpha(step)
         self.theta.index_add_(
             0, slot0[0].reshape(-1), (alpha * advantage[:, None] * slot0[1]).reshape(-1)

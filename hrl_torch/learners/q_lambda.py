@@ -81,6 +81,7 @@ class QLambdaLearner(TabularLearner):
         self.register_buffer("value_node", value_node, persistent=False)
         ids = lay.composite_ids()
         self.value_tables = ids[value_node[lay.table_node[ids]]]
+        self.register_buffer("_planned_value_node", value_node[self.plan.node], persistent=False)
         depths = sorted({int(d) for d in graph.inst_depth[value_node[graph.inst_node]]})
         self.register_buffer("depths", torch.tensor(depths, dtype=torch.long), persistent=False)
         self._rows: dict[str, torch.Tensor] = {}
@@ -89,23 +90,17 @@ class QLambdaLearner(TabularLearner):
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:
-        """``V(i, s) = max_a Q(i, s, a)`` over available children for every value node."""
-        lay, ids = self.layout, self.value_tables
-        nodes = lay.table_node[ids]
-        available = ctx.available[:, nodes]
-        q = self.table_rows(self.Q, ctx, ids, available)
-        best = torch.where(available, q, torch.full_like(q, -torch.inf)).amax(-1)
-        dead = ctx.blocked[:, nodes] | ~available.any(-1)
-        value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
-        value[:, ids] = torch.where(dead, 0.0, best)
-        ctx.values["V"] = value
+        """``Q(i, s, .)`` rows and ``V(i, s) = max_a Q(i, s, a)`` at every value node.
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``Q(i, s, .)`` for the instances ``inst [B]`` (0 for rows on other nodes)."""
-        lay = self.layout
-        idx, table = self.instance_index(self.Q, ctx, inst)
-        node = lay.table_node[table]
-        return self.Q.read(idx, lay.table_child_valid[table] & self.value_node[node, None])
+        Rows of other nodes (policy-gradient ones in a hybrid) read 0 and are worth 0.
+        """
+        mine = self._planned_value_node
+        available, dead, (q,) = self.composite_rows(ctx, self.Q, tables=mine)
+        best = torch.where(available, q, -torch.inf).amax(-1)
+        dead = dead | ~mine
+        value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
+        ctx.values["V"] = value.index_copy_(1, self.plan.order, torch.where(dead, 0.0, best))
+        ctx.values["Q"] = q
 
     # ------------------------------------------------------------------ per-row traces
     def _row_state(self, b: int, device: torch.device) -> dict[str, torch.Tensor]:
@@ -130,7 +125,7 @@ class QLambdaLearner(TabularLearner):
         self._rows = {k: v.clone() for k, v in state.items()}
 
     # ------------------------------------------------------------------ updates
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """One Q(lambda) step for every finished child of a value node in ``batch``."""
         lay, depths = self.layout, self.depths
         b = batch.batch_size[0]
@@ -142,7 +137,7 @@ class QLambdaLearner(TabularLearner):
         table = lay.inst_table[inst.clamp_min(0)]
         valid = pick("valid") & self.value_node[node] & (pick("child_done") | terminal)
         continuation = torch.where(
-            terminal, pick("pseudo_reward"), ctx.values["V"].gather(1, table)
+            terminal, pick("pseudo_reward"), batch["values", "V"].gather(1, table)
         )
         discount = self.gamma ** pick("duration")
         target = pick("discounted_reward") + pick("internal_reward") + discount * continuation

@@ -18,7 +18,7 @@ import torch
 from hrl_torch.executor import LEVEL
 from hrl_torch.graph import StepContext
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, discount, lookup
+from hrl_torch.ops import discount, lookup
 
 
 class SMDPQLearner(TabularLearner):
@@ -39,38 +39,27 @@ class SMDPQLearner(TabularLearner):
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.Q = self.completion_bank(init)
         self.attach_heads(Q=self.Q)
-        self.composite = self.layout.composite_ids()
 
     def evaluate(self, ctx: StepContext) -> None:
-        """``max_a Q(i, s, a)`` over available children for every non-primitive table node."""
-        lay = self.layout
-        ids = self.composite
-        nodes = lookup(lay.table_node, ids)
-        available = columns(ctx.available, nodes)
-        q = self.table_rows(self.Q, ctx, ids, available)
+        """``Q(i, s, .)`` rows and ``V(i, s) = max_a Q(i, s, a)`` for every non-primitive table."""
+        available, dead, (q,) = self.composite_rows(ctx, self.Q)
         best = torch.where(available, q, -torch.inf).amax(-1)
-        dead = columns(ctx.blocked, nodes) | ~available.any(-1)
-        value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
-        value.index_copy_(1, ids, torch.where(dead, 0.0, best))
-        ctx.values["V"] = value
+        value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
+        ctx.values["V"] = value.index_copy_(1, self.plan.order, torch.where(dead, 0.0, best))
+        ctx.values["Q"] = q
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``Q(i, s, .)`` for the instances ``inst [B]``."""
-        return self.instance_rows(self.Q, ctx, inst)[0]
-
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """One SMDP Q-learning step for every finished child in ``batch``."""
         level = batch[LEVEL]
-        lay = self.layout
-        learner = batch["learner"][:, None].expand_as(level["inst"])
-        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
+        learner = batch["learner"][:, None]
+        table = lookup(self.layout.inst_table, level["inst"].clamp_min(0))
         terminal = level["terminal"]
         valid = level["valid"] & (level["child_done"] | terminal)
         factor = discount(self.gamma, level["duration"])
         continuation = torch.where(
-            terminal, level["pseudo_reward"], ctx.values["V"].gather(1, table)
+            terminal, level["pseudo_reward"], batch["values", "V"].gather(1, table)
         )
         target = level["discounted_reward"] + level["internal_reward"] + factor * continuation
         idx = self.Q.index(learner, table, level["state"], level["child"])
         self.record_td(learner, level["node"], target - self.Q.read(idx, valid), valid)
-        self.Q.update(idx.reshape(-1), target.reshape(-1), self.alpha(step), valid.reshape(-1))
+        self.Q.update(idx.view(-1), target.view(-1), self.alpha(step), valid.view(-1))

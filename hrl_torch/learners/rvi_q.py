@@ -86,21 +86,15 @@ class RVIQLearner(TabularLearner):
         return self.Q.read(idx).amax(-1)
 
     def evaluate(self, ctx: StepContext) -> None:
-        """``max_a Q(s, a)`` at the root."""
-        lay = self.layout
-        root = torch.tensor([self.graph.root], device=ctx.abstract.device)
-        available = ctx.available[:, root]
-        q = self.table_rows(self.Q, ctx, root, available)
+        """``Q(s, .)`` and ``max_a Q(s, a)`` at the root."""
+        available, _, (q,) = self.composite_rows(ctx, self.Q)
         best = torch.where(available, q, -torch.inf).amax(-1)
-        value = torch.zeros(q.shape[0], lay.n_tables, device=q.device)
-        value[:, root] = torch.where(available.any(-1), best, 0.0)
+        value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
+        value.index_copy_(1, self.plan.order, torch.where(available.any(-1), best, 0.0))
         ctx.values["V"] = value
+        ctx.values["Q"] = q
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``Q(s, .)``."""
-        return self.instance_rows(self.Q, ctx, inst)[0]
-
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """One RVI Q-learning step for every primitive step (level 0 of the flat stack)."""
         level = batch[LEVEL]
         lay = self.layout
@@ -111,7 +105,7 @@ class RVIQLearner(TabularLearner):
             t = level["duration"][:, 0] / self.time_unit
         else:
             t = level["steps"][:, 0].float()
-        v_next = ctx.values["V"].gather(1, table[:, None]).squeeze(1)
+        v_next = batch["values", "V"].gather(1, table[:, None]).squeeze(1)
         v_next = torch.where(level["terminal"][:, 0], torch.zeros_like(v_next), v_next)
         target = level["reward"][:, 0] - self.reference()[learner] * t + v_next
         idx = self.Q.index(learner, table, level["state"][:, 0], level["child"][:, 0])

@@ -35,6 +35,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule, masked_argmax
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
+from hrl_torch.ops import columns, lookup
 
 
 def three_part_targets(
@@ -119,68 +120,56 @@ class ThreePartLearner(TabularLearner):
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:
-        """Bottom-up ``V``, ``CE(., a*)`` and ``Q(., a*)``; top-down ``W``, for every instance."""
-        lay = self.layout
-        b = ctx.abstract.shape[0]
-        value = torch.zeros(b, lay.n_tables, device=ctx.abstract.device)
+        """Bottom-up ``V``, ``CE(., a*)`` and ``Q(., a*)``; top-down ``W``, for every instance.
+
+        ``ctx.values``: ``V``, ``CE``, ``W`` ``[B, T]``; ``Q`` ``[B, Tc, A]`` (plan order), the
+        rows ``V + C + CE`` the choices read.
+        """
+        available, dead, (c, ce) = self.composite_rows(ctx, self.C, self.CE)
+        value = self.primitive_values(ctx, self.V)
         ce_best = torch.zeros_like(value)
         full = torch.zeros_like(value)
-        prims = lay.groups[0]
-        idx = self.V.index(ctx.learner[:, None], prims[None, :], self.table_states(ctx, prims), 0)
-        value[:, prims] = self.V.read(idx)
-        zero = torch.zeros((), device=value.device)
-        for ids in lay.groups[1:]:
-            nodes = lay.table_node[ids]
-            available = ctx.available[:, nodes]
-            projected = value[:, lay.table_children[ids].clamp_min(0)] + self.table_rows(
-                self.C, ctx, ids, available
-            )  # Eq. 4.11
-            ce = self.table_rows(self.CE, ctx, ids, available)
-            q = projected + ce  # Eq. 4.7
-            best = masked_argmax(q, available).unsqueeze(-1)
-            dead = ctx.blocked[:, nodes] | ~available.any(-1)
-            value[:, ids] = torch.where(dead, zero, projected.gather(-1, best).squeeze(-1))
-            ce_best[:, ids] = torch.where(dead, zero, ce.gather(-1, best).squeeze(-1))
-            full[:, ids] = torch.where(dead, zero, q.gather(-1, best).squeeze(-1))
+        q_rows = []
+        for part, ids in self.groups():
+            projected = columns(value, self.plan.child_table[part]) + c[:, part]  # Eq. 4.11
+            ce_part = ce[:, part]
+            q = projected + ce_part  # Eq. 4.7
+            best = masked_argmax(q, available[:, part]).unsqueeze(-1)
+            gone = dead[:, part]
+            for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
+                out.index_copy_(1, ids, torch.where(gone, 0.0, rows.gather(-1, best)[..., 0]))
+            q_rows.append(q)
         outer = full.clone()  # W: an instance that ended at x hands over to its parent
         for ids in self._levels:
-            ended = ctx.terminated[:, lay.table_node[ids]]
+            ended = columns(ctx.terminated, self.layout.table_node[ids])
             outer[:, ids] = torch.where(ended, outer[:, self._parent[ids]], full[:, ids])
         ctx.values["V"] = value
         ctx.values["CE"] = ce_best
         ctx.values["W"] = outer
-
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """``Q(i, x, .) = V(., x) + C(i, x, .) + CE(i, x, .)`` for the instances ``inst [B]``."""
-        lay = self.layout
-        idx, table = self.instance_index(self.C, ctx, inst)  # CE is laid out as C
-        child_v = ctx.values["V"].gather(1, lay.table_children[table].clamp_min(0))
-        ok = lay.table_child_valid[table]
-        return child_v + self.C.read(idx, ok) + self.CE.read(idx, ok)
+        ctx.values["Q"] = torch.cat(q_rows, 1)
 
     # ------------------------------------------------------------------ updates
-    def update(self, batch, ctx: StepContext, step: int) -> None:
+    def update(self, batch, step: int) -> None:
         """Algorithm 1's updates for every finished child and primitive step in ``batch``."""
-        level, prim = batch[LEVEL], batch[PRIMITIVE]
+        level, prim, values = batch[LEVEL], batch[PRIMITIVE], batch["values"]
         alpha = self.alpha(step)
         lay = self.layout
-        inst = level["inst"]
-        learner = batch["learner"][:, None].expand_as(inst)
-        table = lay.inst_table[inst.clamp_min(0)]
+        learner = batch["learner"][:, None]
+        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
         terminal = level["terminal"]
         valid = level["valid"] & (level["child_done"] | terminal)
         t = self.time_of(batch)
-        v_next = ctx.values["V"].gather(1, table)
-        ce_next = ctx.values["CE"].gather(1, table)
+        v_next = values["V"].gather(1, table)
+        ce_next = values["CE"].gather(1, table)
         parent = level["parent_inst"]
-        outer = ctx.values["W"].gather(1, lay.inst_table[parent.clamp_min(0)])
-        outer = torch.where(parent >= 0, outer, torch.zeros_like(outer))
+        outer = values["W"].gather(1, lookup(lay.inst_table, parent.clamp_min(0)))
+        outer = torch.where(parent >= 0, outer, 0.0)
         c_target, ce_target = three_part_targets(self.discount(t), terminal, v_next, ce_next, outer)
         idx = self.C.index(learner, table, level["state"], level["child"])
         self.record_td(learner, level["node"], c_target - self.C.read(idx, valid), valid)
-        flat_idx, flat_valid = idx.reshape(-1), valid.reshape(-1)
-        self.C.update(flat_idx, c_target.reshape(-1), alpha, flat_valid)  # line 17
-        self.CE.update(flat_idx, ce_target.reshape(-1), alpha, flat_valid)  # lines 19 / 21
+        flat_idx, flat_valid = idx.view(-1), valid.view(-1)
+        self.C.update(flat_idx, c_target.view(-1), alpha, flat_valid)  # line 17
+        self.CE.update(flat_idx, ce_target.view(-1), alpha, flat_valid)  # lines 19 / 21
         if self.all_states and "visited_state" in level.keys():
             # line 16: every x in ChildSeq, with the time left after it
             late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
@@ -200,6 +189,5 @@ class ThreePartLearner(TabularLearner):
             ).reshape(-1)
             self.C.update(vidx, c_k.reshape(-1), alpha, late.reshape(-1))
             self.CE.update(vidx, ce_k.reshape(-1), alpha, late.reshape(-1))
-        prim_table = lay.inst_table[prim["inst"].clamp_min(0)]
-        pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
+        pidx = self.table_index(self.V, batch["learner"], prim["inst"], prim["state"], 0)
         self.V.update(pidx, self.primitive_target(batch), alpha, prim["valid"])  # line 5

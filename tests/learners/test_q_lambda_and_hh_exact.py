@@ -9,6 +9,7 @@ then Go3 from 2 (one step).
 
 import torch
 
+from hrl_torch.agent import with_values
 from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import HDRLearner, HHLearner
@@ -51,7 +52,7 @@ def run(graph, env, learner, steps, gamma=1.0):
         td = env.step(ex._action)
         ctx = graph.context(td)
         learner.evaluate(ctx)
-        learner.update(ex.observe(td, ctx), ctx, 0)
+        learner.update(with_values(ex.observe(td, ctx), ctx), 0)
         ex.act(ctx, policy, 0)
     return ctx
 
