@@ -84,8 +84,12 @@ def _center(row: int, col: int) -> tuple[int, int]:
 
 
 def _parse_map():
-    cells = [(r, c) for r in range(N_ROWS) for c in range(N_COLS)
-             if MAP[_center(r, c)[0]][_center(r, c)[1]] != "#"]
+    cells = [
+        (r, c)
+        for r in range(N_ROWS)
+        for c in range(N_COLS)
+        if MAP[_center(r, c)[0]][_center(r, c)[1]] != "#"
+    ]
     index = {rc: k for k, rc in enumerate(cells)}
     labels = {}
     for k, (r, c) in enumerate(cells):
@@ -221,8 +225,13 @@ class SmallAGVEnv(BatchedEnv):
 
     state_keys = ("state", "delivered")
     observation_sizes = {
-        "observation": N_STATES, "location": N_LOCATIONS, "status": N_STATUS, "row": N_ROWS,
-        "col": N_COLS, "room": 3, "delivered": 3,
+        "observation": N_STATES,
+        "location": N_LOCATIONS,
+        "status": N_STATUS,
+        "row": N_ROWS,
+        "col": N_COLS,
+        "room": 3,
+        "delivered": 3,
     }
 
     def __init__(
