@@ -65,6 +65,7 @@ from envs.agv_small import (
     N_STATES,
     ROOM_OF,
     SmallAGVEnv,
+    decode,
 )
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec
@@ -169,16 +170,26 @@ def small_agv_hierarchy() -> TaskGraph:
     prims = [Primitive(name, k) for k, name in enumerate(MOVES)]
     prims += [Primitive("Load", 4), Primitive("Unload", 5, N_STATES, lambda o: o["observation"])]
     parts = [_get_part(1), _get_part(2), _deliver_part(1), _deliver_part(2)]
-    return TaskGraph("Root", [root, *parts, *navs, *prims], n_actions=N_ACTIONS)
+    return tabulated(TaskGraph("Root", [root, *parts, *navs, *prims], n_actions=N_ACTIONS))
+
+
+def tabulated(graph: TaskGraph) -> TaskGraph:
+    """``graph`` with its context computed once for the 78 states (a lookup per step).
+
+    Every predicate here reads the state's fields alone (not the step's ``delivered``).
+    """
+    graph.tabulate(TensorDict(decode(torch.arange(N_STATES)), batch_size=[N_STATES]))
+    return graph
 
 
 def flat_graph() -> TaskGraph:
     """One root over the six primitive actions, abstraction = the 78 states (flat learners)."""
     names = [*MOVES, "Load", "Unload"]
     root = Subtask("Root", names, n_states=N_STATES, abstract=lambda o: o["observation"])
-    return TaskGraph(
+    graph = TaskGraph(
         "Root", [root, *(Primitive(n, k) for k, n in enumerate(names))], n_actions=N_ACTIONS
     )
+    return tabulated(graph)
 
 
 # ---------------------------------------------------------------------- experiments (Fig. 4.3)

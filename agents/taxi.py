@@ -28,7 +28,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
+from envs.taxi import N_ACTIONS, N_STATES, STATIONS, TaxiEnv, decode
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -110,7 +110,18 @@ def taxi_hierarchy() -> TaskGraph:
         abstract=lambda o: o["passenger"] * 4 + o["destination"],
     )
     get, put = get_and_put([n.name for n in navs])
-    return TaskGraph("Root", [root, get, put, *navs, *taxi_primitives()], n_actions=N_ACTIONS)
+    graph = TaskGraph("Root", [root, get, put, *navs, *taxi_primitives()], n_actions=N_ACTIONS)
+    return tabulated(graph)
+
+
+def tabulated(graph: TaskGraph) -> TaskGraph:
+    """``graph`` with its context computed once for all 500 states (a lookup per step).
+
+    Every predicate of the taxi graphs reads the state alone.
+    """
+    states = torch.arange(N_STATES)
+    graph.tabulate(TensorDict(decode(states), batch_size=[N_STATES]))
+    return graph
 
 
 def flat_graph(n_states: int = 500, n_actions: int = N_ACTIONS) -> TaskGraph:
@@ -171,7 +182,7 @@ DOMAIN = DomainSpec(
             description="SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph",
         ),
         "q": AlgoSpec(
-            make_graph=flat_graph,
+            make_graph=lambda: tabulated(flat_graph()),
             make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
             make_exploration=_epsilon,
             train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),

@@ -115,7 +115,7 @@ class BatchedEnv:
         else:
             truncated = self.elapsed >= self.max_episode_steps
         self._reset_rows(was_done)
-        self.elapsed = torch.where(was_done, 0, self.elapsed)
+        self.elapsed = self.elapsed.masked_fill(was_done, 0)
         zero = torch.zeros((), device=self.device)
         reward = torch.where(was_done, zero, reward.float())
         duration = torch.where(was_done, zero, duration.float())

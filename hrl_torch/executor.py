@@ -44,7 +44,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import at_rows, discount, lookup
+from hrl_torch.ops import discount, lookup
 from hrl_torch.stack import TaskStack
 
 #: key of the per-level transitions ``[B, D]`` in a transition batch
@@ -159,7 +159,8 @@ class HierarchicalExecutor:
             graph, batch_size, max(self.config.record_visited, 1), score_width
         )
         self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
-        self._no_level = torch.zeros(batch_size, 1, dtype=torch.bool, device=device)
+        self._row_base = self.rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
+        self._root_level = (self.levels == 0)[None, :]
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
@@ -177,92 +178,107 @@ class HierarchicalExecutor:
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
         """Push children until a primitive is on top of every live stack; return actions ``[B]``.
 
-        Rows whose stack is empty and whose episode is not over start at the root.
+        Rows whose stack is empty and whose episode is not over start at the root. The stacks
+        are filled level by level, top-down: level ``l`` of a row whose stack ends below it
+        gets the child the policy chooses for the instance at level ``l - 1``, until a
+        primitive is on top (``D - 1`` rounds; each row's choice at level ``l - 1`` reads the
+        row's random numbers of that level). Instances are handled as ``instance + 1`` here
+        (0: empty), so that the graph's ``*_1`` tables need no clamping.
         """
         g, f = self.graph, self.stack.tensors()
         fresh = (f["top"] < 0) & ~f["done"]
-        inst = torch.where(fresh[:, None] & (self.levels == 0), 0, f["inst"])
-        top = torch.where(fresh, 0, f["top"])
-        first = top  # the level that makes the first choice
-        cur = inst.gather(1, top.clamp_min(0)[:, None]).squeeze(1).clamp_min(0)
-        need = (top >= 0) & ~f["done"] & ~lookup(g.inst_is_primitive, cur)
-        pushed = need
-        stuck = torch.full_like(cur, -1)  # the node of a row that must choose but cannot
+        first = f["top"].masked_fill(fresh, 0)  # the level that makes the first choice
+        old = f["inst"] + 1
+        col = torch.where(fresh, 1, old[:, 0])  # the root (instance 0) of the rows that start
+        going = first >= 0  # the row's stack goes on above this level (after ``observe`` no
+        # primitive is left on top)
+        cols, needs, choices = [col], [], []
         policy.new_step()
-        push = 0
-        while push < self.depth - 1 and (self.config.fixed_pushes or bool(need.any())):
-            node = lookup(g.inst_node, cur)
-            available = at_rows(ctx.available, node)
-            stuck = torch.where(need & ~available.any(-1), node, stuck)
-            choice = _as_choice(policy.select(cur, ctx, available, step, push))
-            here = (self.levels == top[:, None]) & need[:, None]  # the choosing level
-            f["child"] = torch.where(here, choice.child[:, None], f["child"])
-            f["own_greedy"] = torch.where(here, choice.greedy[:, None], f["own_greedy"])
+        for level in range(1, self.depth):
+            need = going & (level > first)
+            node = torch.take(g.inst_node_1, col)
+            available = self._available_flat(ctx).index_select(0, self._row_base + node)
+            choice = _as_choice(
+                policy.select((col - 1).clamp_min(0), ctx, available, step, level - 1)
+            )
+            child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
             if choice.score_index is not None:
-                self._record_score(f, here, choice)
-            child = lookup(g.inst_children_flat, cur * g.max_children + choice.child).clamp_min(0)
-            child_prim = lookup(g.inst_is_primitive, child)
+                self._record_score(f, level - 1, need, choice)
             if g.action_dim:
-                if choice.action is None:
-                    raise GraphError("a continuous primitive was chosen without an action value")
-                f["cont_action"] = torch.where(
-                    (need & child_prim)[:, None], choice.action, f["cont_action"]
-                )
-            top = top + need
-            inst = torch.where(_shift_right(here), child[:, None], inst)
-            cur = torch.where(need, child, cur)
-            need = need & ~child_prim
-            push += 1
-        if bool((stuck >= 0).any()):
-            _raise_stuck(g, stuck)
-        f["inst"], f["top"] = inst, top
-        self._fresh_levels(f, ctx, first, pushed, fresh)
+                self._record_action(f, need & ~torch.take(g.inst_composite_1, child), choice)
+            col = torch.where(need, child, old[:, level])
+            going = going & torch.take(g.inst_composite_1, col)
+            cols.append(col)
+            needs.append(need)
+            choices.append(choice)
+        chose = torch.stack(needs, 1)
+        f["inst"] = torch.stack(cols, 1) - 1
+        for key, attr in (("child", "child"), ("own_greedy", "greedy")):
+            new = torch.stack([getattr(c, attr) for c in choices], 1)
+            f[key] = torch.cat([torch.where(chose, new, f[key][:, :-1]), f[key][:, -1:]], 1)
+        top = (f["inst"] >= 0).sum(1) - 1
+        f["top"] = top
+        self._fresh_levels(f, ctx, first, fresh)
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         if g.action_dim:
             self._action = torch.where((top >= 0)[:, None], f["cont_action"], 0.0)
-        else:
-            self._action = torch.where(top >= 0, lookup(g.node_action, lookup(g.inst_node, cur)), 0)
+        else:  # the primitive on top: the last non-empty column
+            self._action = torch.take(g.inst_action_1, f["inst"].amax(1) + 1)
         self._obs = ctx.obs
         return self._action
 
-    def _record_score(self, f: dict, here: torch.Tensor, choice: Choice) -> None:
-        """Keep the choice's likelihood-ratio term at the choosing level."""
+    def _available_flat(self, ctx: StepContext) -> torch.Tensor:
+        """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
+        return ctx.available.view(-1, self.graph.max_children)
+
+    def _record_score(self, f: dict, level: int, need: torch.Tensor, choice: Choice) -> None:
+        """Keep the choice's likelihood-ratio term at the choosing ``level``."""
         if choice.score_index.shape[1] != self.score_width:
             raise ValueError(
                 f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
                 f"the executor keeps score_width={self.score_width}"
             )
-        at = here[..., None]
+        at = (self.levels == level)[None, :, None] & need[:, None, None]
         f["score_index"] = torch.where(at, choice.score_index[:, None, :], f["score_index"])
         f["score_value"] = torch.where(at, choice.score_value[:, None, :], f["score_value"])
 
-    def _fresh_levels(self, f: dict, ctx: StepContext, first, pushed, rooted) -> None:
+    @staticmethod
+    def _record_action(f: dict, pushed: torch.Tensor, choice: Choice) -> None:
+        """The action vector of the continuous primitives pushed (``pushed [B]``)."""
+        if choice.action is None:
+            raise GraphError("a continuous primitive was chosen without an action value")
+        f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
+
+    def _fresh_levels(self, f: dict, ctx: StepContext, first, rooted) -> None:
         """Start states, accumulators and flags of the levels pushed (or re-chosen) this step.
 
-        Levels ``first .. top`` of the rows that ``pushed`` are fresh: the ones below ``top``
-        chose a new child (accumulators restart), the ones above ``first`` are new invocations,
-        and so is the root of the rows that started (``rooted``).
+        Levels ``first .. top`` of the live rows are fresh: the ones below ``top`` chose a new
+        child (accumulators restart), the ones above ``first`` are new invocations, and so is
+        the root of the rows that started (``rooted``).
         """
         g, lv = self.graph, self.levels[None, :]
         top = f["top"]
-        fresh = pushed[:, None] & (lv >= first[:, None]) & (lv <= top[:, None])
+        fresh = (lv >= first[:, None]) & (lv <= top[:, None])
         chose = fresh & (lv < top[:, None])
-        invoked = (fresh & (lv > first[:, None])) | (rooted[:, None] & (lv == 0))
+        invoked = (fresh & (lv > first[:, None])) | (rooted[:, None] & self._root_level)
         node = lookup(g.inst_node, f["inst"].clamp_min(0))
+        stuck = chose & ~ctx.available.any(-1).gather(1, node)
+        if bool(stuck.any()):
+            _raise_stuck(g, stuck, node)
         f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])
         for key in ("steps", "time", "reward", "disc_reward", "internal"):
-            f[key] = torch.where(chose, 0, f[key])
-        f["inv_steps"] = torch.where(invoked, 0, f["inv_steps"])
+            f[key] = f[key].masked_fill(chose, 0)
+        f["inv_steps"] = f["inv_steps"].masked_fill(invoked, 0)
         # greedy: the level's own choice and every ancestor's (a running AND over levels)
-        f["greedy"] = f["own_greedy"].to(torch.uint8).cummin(1).values.bool()
+        f["greedy"] = f["own_greedy"].cummin(1).values
         if ctx.features is not None:
             feats = ctx.features.gather(1, node[..., None].expand(-1, -1, ctx.features.shape[2]))
             f["start_features"] = torch.where(chose[..., None], feats, f["start_features"])
         if self.config.record_visited:
             first_visit = chose[..., None] & (self._visit_slots == 0)
             f["vis_state"] = torch.where(first_visit, f["start_state"][..., None], f["vis_state"])
-            f["vis_steps"] = torch.where(first_visit, 0, f["vis_steps"])
-            f["vis_time"] = torch.where(first_visit, 0.0, f["vis_time"])
+            f["vis_steps"] = f["vis_steps"].masked_fill(first_visit, 0)
+            f["vis_time"] = f["vis_time"].masked_fill(first_visit, 0.0)
         if g.memory_nodes:  # a new invocation remembers where it started
             started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
             started = started.scatter_add(1, node, invoked.float()) > 0
@@ -307,7 +323,7 @@ class HierarchicalExecutor:
             self._record_visits(f, active & ~is_prim & ~_shift_left(popped), ctx, node)
 
         self.stats.count_ends(self.learner, node, popped, ended_own & popped, f["inv_steps"])
-        f["inst"] = torch.where(popped, -1, inst)
+        f["inst"] = inst.masked_fill(popped, -1)
         f["top"] = torch.where(real, (active & ~popped).sum(1) - 1, -1)
         f["done"] = env_term | env_trunc
         self.stack = TaskStack.from_tensors(f, self.batch_size)
@@ -470,9 +486,9 @@ def _as_choice(out) -> Choice:
 
 def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
     """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN)."""
-    bad = ~(torch.isfinite(reward) & torch.isfinite(duration) & (duration >= 0))
-    if bool(bad.any()):
-        row = int(bad.nonzero()[0])
+    ok = (reward + duration) * 0 + duration >= 0  # False for inf/NaN in either and for d < 0
+    if not bool(ok.all()):
+        row = int((~ok).nonzero()[0])
         r, t = float(reward[row]), float(duration[row])
         raise ValueError(
             f"env row {row} returned reward {r} and duration {t}: rewards must be finite, "
@@ -480,56 +496,64 @@ def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
         )
 
 
-def _raise_stuck(g: TaskGraph, stuck: torch.Tensor) -> None:
+def _raise_stuck(g: TaskGraph, stuck: torch.Tensor, node: torch.Tensor) -> None:
     """A subtask that must choose but has no available child is a graph error."""
-    row = int((stuck >= 0).nonzero()[0])
+    row, level = (int(v) for v in stuck.nonzero()[0])
     raise GraphError(
-        f"subtask {g.names[int(stuck[row])]!r} has no available child in env row {row} "
+        f"subtask {g.names[int(node[row, level])]!r} has no available child in env row {row} "
         f"(every child is terminated, not initiable or masked)"
     )
 
 
-def _shift_left(x: torch.Tensor, fill=False) -> torch.Tensor:
-    """``out[:, k] = x[:, k + 1]``; the last column gets ``fill``."""
-    return torch.cat([x[:, 1:], torch.full_like(x[:, :1], fill)], 1)
+def _shift_left(x: torch.Tensor) -> torch.Tensor:
+    """``out[:, k] = x[:, k + 1]``; the last column gets 0 (False)."""
+    return torch.nn.functional.pad(x[:, 1:], (0, 1))
 
 
-def _shift_right(x: torch.Tensor, fill=False) -> torch.Tensor:
+def _shift_right(x: torch.Tensor, fill=0) -> torch.Tensor:
     """``out[:, k] = x[:, k - 1]``; the first column gets ``fill``."""
-    return torch.cat([torch.full_like(x[:, :1], fill), x[:, :-1]], 1)
+    return torch.nn.functional.pad(x[:, :-1], (1, 0), value=fill)
 
 
 class ExecutorStats:
-    """Per learner and node: calls, finished invocations, successes and their lengths."""
+    """Per learner and node: calls, finished invocations, successes and their lengths.
+
+    One buffer ``[4, P * N]`` (rows: calls, ends, successes, durations), so a step counts
+    with one ``index_add_``; ``calls`` etc. are views of its rows ``[P, N]``.
+    """
+
+    FIELDS = ("calls", "ends", "successes", "durations")
 
     def __init__(self, n_learners: int, n_nodes: int, device: torch.device) -> None:
-        shape = (n_learners, n_nodes)
-        self.calls = torch.zeros(shape, device=device)
-        self.ends = torch.zeros(shape, device=device)
-        self.successes = torch.zeros(shape, device=device)
-        self.durations = torch.zeros(shape, device=device)
+        self.counts = torch.zeros(4, n_learners * n_nodes, device=device)
         self.n_nodes = n_nodes
+        self._base = None  # each row's learner block (the rows are fixed per executor)
+        self.shape = (n_learners, n_nodes)
+        for k, name in enumerate(self.FIELDS):
+            setattr(self, name, self.counts[k].view(self.shape))
+
+    def _add(self, learner, node, values: torch.Tensor, rows: slice) -> None:
+        if self._base is None or self._base.shape[0] != learner.shape[0]:
+            self._base = learner[:, None] * self.n_nodes
+        idx = (self._base + node).view(-1)
+        self.counts[rows].index_add_(1, idx, values.view(values.shape[0], -1))
 
     def count_calls(self, learner: torch.Tensor, node: torch.Tensor, mask: torch.Tensor) -> None:
         """Count one invocation of ``node[b, k]`` where ``mask[b, k]`` (``[B, D]``)."""
-        idx = (learner[:, None] * self.n_nodes + node).reshape(-1)
-        self.calls.view(-1).index_add_(0, idx, mask.reshape(-1).float())
+        self._add(learner, node, mask.float()[None], slice(0, 1))
 
     def count_ends(self, learner, node, popped, success, inv_steps) -> None:
         """Count finished invocations (``[B, D]`` masks) and their lengths in steps."""
-        idx = (learner[:, None] * self.n_nodes + node).reshape(-1)
-        self.ends.view(-1).index_add_(0, idx, popped.float().reshape(-1))
-        self.successes.view(-1).index_add_(0, idx, success.float().reshape(-1))
-        self.durations.view(-1).index_add_(0, idx, (inv_steps * popped).float().reshape(-1))
+        values = torch.stack([popped, success, inv_steps * popped]).float()
+        self._add(learner, node, values, slice(1, 4))
 
     def reset(self) -> None:
         """Zero every counter (after logging)."""
-        for t in (self.calls, self.ends, self.successes, self.durations):
-            t.zero_()
+        self.counts.zero_()
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """The counters since the last log (a resumed run logs what it would have)."""
-        return {k: getattr(self, k).clone() for k in ("calls", "ends", "successes", "durations")}
+        return {k: getattr(self, k).clone() for k in self.FIELDS}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         """Restore ``state_dict``."""

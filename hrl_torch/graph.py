@@ -21,7 +21,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from hrl_torch.ops import columns
+from hrl_torch.ops import columns, lookup
 
 ObsFn = Callable[[TensorDict], torch.Tensor]
 
@@ -442,6 +442,28 @@ class TaskGraph(nn.Module):
         self.register_buffer("inst_children", inst_children, persistent=False)
         # row ``i * max_children + a``: the instance of child slot ``a`` of instance ``i``
         self.register_buffer("inst_children_flat", inst_children.view(-1), persistent=False)
+        # the executor's tables over ``instance + 1`` (0: an empty level): node, whether it is
+        # non-primitive (it chooses), its env action, and its children (+ 1; 0: no child)
+        node_1 = torch.tensor([0] + inst_node, **as_long)
+        composite_1 = torch.cat(
+            [torch.zeros(1, dtype=torch.bool), ~self.node_is_primitive[torch.tensor(inst_node)]]
+        )
+        children_1 = torch.cat(
+            [torch.zeros(self.max_children, dtype=torch.long), (inst_children + 1).view(-1)]
+        )
+        action_1 = torch.cat(
+            [
+                torch.zeros(1, dtype=torch.long),
+                self.node_action[torch.tensor(inst_node)].clamp_min(0),
+            ]
+        )
+        for name, value in (
+            ("inst_node_1", node_1),
+            ("inst_composite_1", composite_1),
+            ("inst_children_1", children_1),
+            ("inst_action_1", action_1),
+        ):
+            self.register_buffer(name, value, persistent=False)
         self.register_buffer("inst_slot", torch.tensor(inst_slot, **as_long), persistent=False)
         self.register_buffer(
             "inst_is_primitive", self.node_is_primitive[self.inst_node], persistent=False
@@ -457,6 +479,7 @@ class TaskGraph(nn.Module):
             and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
         ]
         self.check_ranges = True
+        self._table_key: str | None = None  # set by ``tabulate``
         # which nodes need a call per step (defaults are constant columns)
         self._abstract_nodes = self._custom(lambda x: x.n_states > 1 or _overrides(x, "abstract"))
         self._terminating_nodes = self._custom(
@@ -499,6 +522,33 @@ class TaskGraph(nn.Module):
         return [k for k, x in enumerate(self.nodes) if not x.is_primitive]
 
     # ------------------------------------------------------------------ per-step evaluation
+    def tabulate(self, observations: TensorDict, key: str = "observation") -> None:
+        """Compute the context of every state once; ``context`` then only looks it up.
+
+        For finite domains whose predicates (abstractions, termination, initiation, child
+        masks, features) are functions of one integer field ``key`` alone: ``observations``
+        holds every state, ``observations[key] == arange(S)``. Nodes with invocation memory
+        or shaping rewards read more than the state and cannot be tabulated.
+        """
+        if self.memory_nodes:
+            raise GraphError("nodes with invocation memory cannot be tabulated")
+        n = observations.batch_size[0]
+        if not torch.equal(observations[key].cpu(), torch.arange(n)):
+            raise GraphError(f"tabulate needs every state once, in order: {key} == arange(S)")
+        self._table_key = None
+        ctx = self.context(observations)
+        tables = {
+            "tab_abstract": ctx.abstract,
+            "tab_terminated": ctx.terminated,
+            "tab_blocked": ctx.blocked,
+            "tab_available": ctx.available,
+        }
+        if ctx.features is not None:
+            tables["tab_features"] = ctx.features
+        for name, value in tables.items():
+            self.register_buffer(name, value, persistent=False)
+        self._table_key = key
+
     def context(
         self,
         obs: TensorDict,
@@ -514,6 +564,18 @@ class TaskGraph(nn.Module):
         b, device = _batch(obs)
         if learner is None:
             learner = torch.zeros(b, dtype=torch.long, device=device)
+        if self._table_key is not None:  # a tabulated graph: every field is a lookup
+            s = obs[self._table_key]
+            features = lookup(self.tab_features, s) if self.max_features else None
+            return StepContext(
+                obs,
+                learner,
+                lookup(self.tab_abstract, s),
+                lookup(self.tab_terminated, s),
+                lookup(self.tab_blocked, s),
+                lookup(self.tab_available, s),
+                features,
+            )
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         abstract = self._node_columns(

@@ -6,12 +6,21 @@ import torch
 
 
 def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """``table[index]`` (rows of ``table``) for any-shaped ``index``, via ``index_select``."""
+    """``table[index]`` (rows of ``table``) for any-shaped ``index``.
+
+    A 1-D table is one ``take`` (one op); rows of a larger table one ``index_select``.
+    """
+    if table.dim() == 1:
+        return torch.take(table, index)
+    if index.dim() == 1:
+        return table.index_select(0, index)
     return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
 
 
 def columns(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """``x[:, index]`` for ``x [B, N, ...]`` and any-shaped ``index`` into ``N``."""
+    if index.dim() == 1:
+        return x.index_select(1, index)
     return x.index_select(1, index.reshape(-1)).view(x.shape[0], *index.shape, *x.shape[2:])
 
 

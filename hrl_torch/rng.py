@@ -85,8 +85,10 @@ class BatchRNG:
         base = _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
         if extra == 0:
             return mix32(self._row_key ^ base)
-        cols = mix32(torch.arange(extra, dtype=torch.int64, device=self.device) + base)
-        return mix32(self._row_key[:, None] ^ cols[None, :])
+        # the column keys are a handful of numbers: hashed in Python, one tensor
+        cols = [_mix32_int(k + base) for k in range(extra)]
+        cols = torch.tensor(cols, dtype=torch.int64, device=self.device)
+        return mix32(self._row_key[:, None] ^ cols)
 
     def uniform(self, extra: int = 0, counter: int | None = None) -> torch.Tensor:
         """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).

@@ -98,8 +98,7 @@ class TableBank(nn.Module):
         store[-1] = 0.0
         self.register_buffer("store", store)
         self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
-        self._count = torch.zeros(0)
-        self._sum = torch.zeros(0)
+        self._scratch = torch.zeros(2, 0)
 
     @property
     def data(self) -> torch.Tensor:
@@ -165,35 +164,30 @@ class TableBank(nn.Module):
         Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
         """
         flat = self.store
-        weight = mask.to(flat.dtype)
-        index = torch.where(mask, flat_index, self.sentinel)  # masked rows hit the sentinel
-        n, total = self._count_and_sum(index, weight, weight * torch.nan_to_num(target))
+        index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
+        weighted = torch.stack([mask.to(flat.dtype), torch.nan_to_num(target)]) * mask
+        n, total = self._count_and_sum(index, weighted)
         keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
         mean = total / n.clamp_min(1.0)
-        flat.index_put_((index,), keep * flat.index_select(0, index) + (1.0 - keep) * mean)
+        flat.index_put_((index,), mean + keep * (flat.index_select(0, index) - mean))
 
-    def _count_and_sum(self, index, weight, value) -> tuple[torch.Tensor, torch.Tensor]:
+    def _count_and_sum(self, index, weighted) -> tuple[torch.Tensor, torch.Tensor]:
         """Per row: how many rows hit its entry, and the sum of their values (order-free).
 
-        Small tables use scratch buffers the size of the table (no sort, no sync); large ones
-        (flat learners on big state spaces) group the rows with ``unique`` instead of doubling
-        the table's memory.
+        ``weighted [2, R]``: each row's weight (1, or 0 for masked rows) and weighted value.
+        Small tables use a scratch buffer twice the table's size (no sort, no sync); large
+        ones (flat learners on big state spaces) group the rows with ``unique`` instead.
         """
         if self.store.numel() > self.SCRATCH_LIMIT:
             _, group = torch.unique(index, return_inverse=True)
-            count = torch.zeros(index.shape[0], dtype=value.dtype, device=value.device)
-            total = torch.zeros_like(count)
-            count.index_add_(0, group, weight)
-            total.index_add_(0, group, value)
-            return count.index_select(0, group), total.index_select(0, group)
-        if self._count.shape != self.store.shape or self._count.device != self.store.device:
-            self._count = torch.zeros_like(self.store)
-            self._sum = torch.zeros_like(self.store)
-        self._count.index_add_(0, index, weight)
-        self._sum.index_add_(0, index, value)
-        n, total = self._count.index_select(0, index), self._sum.index_select(0, index)
-        self._count.index_fill_(0, index, 0.0)
-        self._sum.index_fill_(0, index, 0.0)
+            sums = torch.zeros_like(weighted).index_add_(1, group, weighted)
+            n, total = sums.index_select(1, group)
+            return n, total
+        if self._scratch.shape[1] != self.store.shape[0] or self._scratch.device != index.device:
+            self._scratch = torch.zeros(2, self.store.shape[0], device=self.store.device)
+        self._scratch.index_add_(1, index, weighted)
+        n, total = self._scratch.index_select(1, index)
+        self._scratch.index_fill_(1, index, 0.0)
         return n, total
 
 
@@ -208,7 +202,9 @@ class EvalPlan(nn.Module):
     Buffers: ``order [Tc]`` table ids, ``node [Tc]`` their graph nodes, ``child_table [Tc, A]``
     the children's table ids (padding: 0), ``child_valid [Tc, A]``, ``inst_pos [I]`` the
     position in ``order`` of each instance's table (0 for primitives), ``prims [Tp]`` the
-    primitive tables and ``prim_node [Tp]`` their nodes.
+    primitive tables and ``prim_node [Tp]`` their nodes; ``choosers [Ic]`` the non-primitive
+    instances (``chooser_rank [I]`` the rank of each among them) with their table positions,
+    nodes and depths.
     """
 
     def __init__(self, graph: TaskGraph, layout: TableLayout) -> None:
@@ -232,6 +228,18 @@ class EvalPlan(nn.Module):
         ):
             self.register_buffer(name, value, persistent=False)
         self.register_buffer("cols", torch.arange(layout.max_children), persistent=False)
+        # the instances that choose (non-primitive): their rank, table position, node, depth
+        choosers = (~graph.inst_is_primitive).nonzero().squeeze(1)
+        rank = torch.zeros(graph.n_instances, dtype=torch.long)
+        rank[choosers] = torch.arange(len(choosers))
+        for name, value in (
+            ("choosers", choosers),
+            ("chooser_rank", rank),
+            ("chooser_pos", pos[layout.inst_table[choosers]]),
+            ("chooser_node", graph.inst_node[choosers]),
+            ("chooser_depth", graph.inst_depth[choosers]),
+        ):
+            self.register_buffer(name, value, persistent=False)
         self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def offsets(self, bank: TableBank) -> tuple[torch.Tensor, torch.Tensor]:

@@ -62,5 +62,5 @@ def test_large_tables_group_updates_without_scratch_buffers_and_agree(monkeypatc
     monkeypatch.setattr(TableBank, "SCRATCH_LIMIT", 0)
     large = bank(init=0.5)
     large.update(idx, target, 0.3, mask)
-    assert large._count.numel() == 0  # no table-sized buffers
+    assert large._scratch.numel() == 0  # no table-sized buffers
     assert torch.equal(small.store, large.store)

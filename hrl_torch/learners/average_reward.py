@@ -181,7 +181,7 @@ class RARLearner(TabularLearner):
         for part, ids in self.groups():
             q = columns(value, self.plan.child_table[part]) + c[:, part]
             best = torch.where(available[:, part], q, -torch.inf).amax(-1)
-            value.index_copy_(1, ids, torch.where(dead[:, part], 0.0, best))
+            value.index_copy_(1, ids, best.masked_fill(dead[:, part], 0.0))
             q_rows.append(q)
         ctx.values["H"] = value
         ctx.values["Q"] = torch.cat(q_rows, 1)

@@ -141,6 +141,10 @@ class TabularLearner(Learner):
         """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``."""
         return at_rows(ctx.values["Q"], lookup(self.plan.inst_pos, inst))
 
+    def instance_action_values(self, ctx: StepContext) -> torch.Tensor:
+        """The rows of every choosing instance (``plan.choosers``): ``[B, Ic, A]``."""
+        return ctx.values["Q"].index_select(1, self.plan.chooser_pos)
+
     # ------------------------------------------------------------------ updates
     def table_index(self, bank: TableBank, learner, inst, state, col) -> torch.Tensor:
         """Flat indices into ``bank`` of ``(instance's table, state, col)`` (broadcast)."""
@@ -167,12 +171,14 @@ class TabularLearner(Learner):
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.
 
-    Every step draws one block of uniforms per push level (``new_step``), and the ``k``-th push
-    of a step reads block ``k``: a row's random stream never depends on how many pushes other
-    rows needed, so a population equals separate runs.
+    Every step draws one block of uniforms per stack level (``new_step``), and a choice made
+    at level ``l`` reads block ``l``: a row's random stream never depends on what other rows
+    do, so a population equals separate runs. Tabular learners (``instance_action_values``)
+    have every choosing instance's choice made at once, on the first ``select`` of a step;
+    the executor's pushes then read them.
 
     Args:
-        learner: provides ``action_values``.
+        learner: provides ``action_values`` (and optionally ``instance_action_values``).
         exploration: greedy, epsilon-greedy or Boltzmann.
         rng: random numbers for the rows (one stream per row).
     """
@@ -182,16 +188,36 @@ class ValuePolicy:
         self.exploration = exploration
         self.rng = rng
         self.width = uniforms_needed(learner.graph.max_children)
+        self.all_at_once = hasattr(learner, "instance_action_values")
         self._u = None
+        self._choices = None
 
     def new_step(self) -> None:
         """Draw this step's uniforms ``[B, levels, width]``."""
         levels = self.learner.graph.max_levels
         self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
+        self._choices = None
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
     ) -> Choice:
-        """The choices of the ``push``-th push of the step."""
-        q = self.learner.action_values(inst, ctx)
-        return Choice(*self.exploration.select(q, available, self._u[:, push], step))
+        """The choices for instances ``inst [B]`` at stack level ``push``."""
+        if not self.all_at_once:
+            q = self.learner.action_values(inst, ctx)
+            return Choice(*self.exploration.select(q, available, self._u[:, push], step))
+        if self._choices is None:
+            self._choices = self._choose_all(ctx, step)
+        plan = self.learner.plan
+        flat = self._row_base + lookup(plan.chooser_rank, inst)
+        child, greedy = self._choices
+        return Choice(torch.take(child, flat), torch.take(greedy, flat))
+
+    def _choose_all(self, ctx: StepContext, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(child, greedy)`` ``[B * Ic]`` of every choosing instance (its level's uniforms)."""
+        plan = self.learner.plan
+        q = self.learner.instance_action_values(ctx)
+        b, ic, a = q.shape
+        available = ctx.available.index_select(1, plan.chooser_node).view(-1, a)
+        u = self._u.index_select(1, plan.chooser_depth).view(-1, self.width)
+        self._row_base = torch.arange(b, device=q.device) * ic
+        return self.exploration.select(q.view(-1, a), available, u, step)

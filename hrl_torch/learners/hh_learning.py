@@ -129,7 +129,7 @@ class HHLearner(TabularLearner):
             q = value[:, plan.child_table[part]] + cont
             best = torch.where(available, q, -torch.inf).amax(-1)
             dead = columns(ctx.blocked, nodes) | ~available.any(-1)
-            value[:, ids] = torch.where(dead, 0.0, best)
+            value[:, ids] = best.masked_fill(dead, 0.0)
             q_rows.append(q)
         ctx.values["H"] = value
         ctx.values["Q"] = torch.cat(q_rows, 1)

@@ -84,10 +84,10 @@ class MaxQLearner(TabularLearner):
                 best = masked_argmax(q_int, ok).unsqueeze(-1)
                 v_ext = q_ext.gather(-1, best).squeeze(-1)
                 v_int = q_int.gather(-1, best).squeeze(-1)
-                value_int.index_copy_(1, ids, torch.where(gone, 0.0, v_int))
+                value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
             else:
                 v_ext = torch.where(ok, q_ext, -torch.inf).amax(-1)
-            value.index_copy_(1, ids, torch.where(gone, 0.0, v_ext))
+            value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
             q_rows.append(q_int)
         ctx.values["V"] = value
         ctx.values["V_int"] = value_int
@@ -97,7 +97,7 @@ class MaxQLearner(TabularLearner):
     @staticmethod
     def targets(discount, internal, terminal, pseudo, v_next, v_next_int):
         """External and internal completion targets (all arguments broadcast together)."""
-        external = torch.where(terminal, 0.0, discount * v_next)
+        external = discount * v_next.masked_fill(terminal, 0.0)
         internal = internal + discount * torch.where(terminal, pseudo, v_next_int)
         return external, internal
 

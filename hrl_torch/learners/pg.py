@@ -398,7 +398,7 @@ class HPGRLLearner(Learner):
                 (batch["learner"][:, None] * len(self.group_names) + gid.clamp_min(0))[ended],
                 torch.ones(int(ended.sum()), device=self.cycles.device),
             )
-        rows["count"] = torch.where(ended, 0, count)
+        rows["count"] = count.masked_fill(ended, 0)
 
     def _apply(self, rows, pairs: torch.Tensor, alpha: float, cell: torch.Tensor) -> None:
         """``theta += alpha * sum_n w_n g_n`` over the ring entries of the selected (row, depth).

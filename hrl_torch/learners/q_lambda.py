@@ -99,7 +99,7 @@ class QLambdaLearner(TabularLearner):
         best = torch.where(available, q, -torch.inf).amax(-1)
         dead = dead | ~mine
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
-        ctx.values["V"] = value.index_copy_(1, self.plan.order, torch.where(dead, 0.0, best))
+        ctx.values["V"] = value.index_copy_(1, self.plan.order, best.masked_fill(dead, 0.0))
         ctx.values["Q"] = q
 
     # ------------------------------------------------------------------ per-row traces
@@ -157,7 +157,7 @@ class QLambdaLearner(TabularLearner):
             trace = torch.where(take(pick("greedy"))[:, None], trace, 0.0)
             # replacing traces: e(s, .) = 0, then e(s, a) = 1 in the next ring slot
             sa, state_row = take(idx), take(idx - child)
-            trace = torch.where(ring["row"] == state_row[:, None], 0.0, trace)
+            trace = trace.masked_fill(ring["row"] == state_row[:, None], 0.0)
             slot = take(rows["ptr"])[:, None]
             ring["index"].scatter_(1, slot, sa[:, None])
             ring["row"].scatter_(1, slot, state_row[:, None])
@@ -171,9 +171,9 @@ class QLambdaLearner(TabularLearner):
             rows["ptr"].view(-1).index_copy_(0, pair, (slot[:, 0] + 1) % k)
         # a finished invocation starts with empty traces
         ended = invocation_ended(batch, depths)
-        rows["trace"] = torch.where(ended[..., None], 0.0, rows["trace"])
-        rows["row"] = torch.where(ended[..., None], -1, rows["row"])
-        rows["ptr"] = torch.where(ended, 0, rows["ptr"])
+        rows["trace"] = rows["trace"].masked_fill(ended[..., None], 0.0)
+        rows["row"] = rows["row"].masked_fill(ended[..., None], -1)
+        rows["ptr"] = rows["ptr"].masked_fill(ended, 0)
 
     def _add(self, index, num, den, alpha: float) -> None:
         """``Q[i] += alpha * sum(num) / max(1, sum(den))`` over the entries per index ``i``."""

@@ -45,7 +45,7 @@ class SMDPQLearner(TabularLearner):
         available, dead, (q,) = self.composite_rows(ctx, self.Q)
         best = torch.where(available, q, -torch.inf).amax(-1)
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
-        ctx.values["V"] = value.index_copy_(1, self.plan.order, torch.where(dead, 0.0, best))
+        ctx.values["V"] = value.index_copy_(1, self.plan.order, best.masked_fill(dead, 0.0))
         ctx.values["Q"] = q
 
     def update(self, batch, step: int) -> None:
