@@ -17,6 +17,8 @@ import math
 import os
 import sys
 
+import torch
+
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
 
@@ -85,11 +87,26 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--checkpoint-every", type=natural, default=None, help="0: at the end")
     train.add_argument("--out", default="runs")
     train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
+    train.add_argument("--device", type=_device, default="cpu", help="cpu, cuda, cuda:1, ...")
+    train.add_argument(
+        "--collector", action="store_true", help="step through a TorchRL Collector's frames"
+    )
     train.add_argument("--no-progress", action="store_true")
     train.add_argument("--no-tensorboard", action="store_true")
     for p in (parser, train):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return parser
+
+
+def _device(text: str) -> str:
+    """A torch device that exists on this machine (``--device``)."""
+    try:
+        device = torch.device(text)
+    except RuntimeError as err:
+        raise argparse.ArgumentTypeError(f"not a torch device: {text!r}") from err
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise argparse.ArgumentTypeError(f"{text}: no CUDA device on this machine")
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,6 +156,8 @@ def _run(args: argparse.Namespace) -> int:
         resume=args.resume,
         progress=not args.no_progress,
         tensorboard=not args.no_tensorboard,
+        device=args.device,
+        collector=args.collector,
     )
     run_dir, summary = run_experiment(domain, args.algo, opts)
     print(format_summary(summary))

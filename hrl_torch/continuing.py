@@ -78,13 +78,13 @@ class ThroughputEvaluator:
             env, BatchRNG(env.seeds, env.envs_per_learner, "eval-explore")
         )
         action = agent.start(env.reset())
-        sums = torch.zeros(3, env.batch_size)  # amount, reward, time
+        sums = torch.zeros(3, env.batch_size, device=env.device)  # amount, reward, time
         for k in range(self.burn_in + self.horizon):
             td = env.step(action)
             if k >= self.burn_in:
-                sums += torch.stack([self.metric(td), td["reward"], td["duration"]]).cpu()
+                sums += torch.stack([self.metric(td), td["reward"], td["duration"]])
             action = agent.step(td)
-        per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1)
+        per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1).cpu()
         throughput, rate = _rates(per_learner, self.scale)
         self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
         return throughput, rate
@@ -95,14 +95,14 @@ class ThroughputEvaluator:
         real = (~td["is_init"]).float()
         values = torch.stack([self.metric(td) * real, td["reward"] * real, td["duration"] * real])
         if self._sums is None or self._sums.shape[1] != n_learners:
-            self._sums = torch.zeros(3, n_learners, dtype=torch.float64)
-        self._sums.index_add_(1, rows.cpu(), values.cpu().double())
+            self._sums = torch.zeros(3, n_learners, dtype=torch.float64, device=rows.device)
+        self._sums.index_add_(1, rows, values.double())
 
     def flush(self) -> dict[str, list[float]]:
         """Training throughput and reward rate since the last flush, per learner."""
         if self._sums is None:
             return {}
-        throughput, rate = _rates(self._sums, self.scale)
+        throughput, rate = _rates(self._sums.cpu(), self.scale)
         self._sums.zero_()
         names = self.train_tags
         self.last_train = {names[0]: throughput.tolist(), names[1]: rate.tolist()}

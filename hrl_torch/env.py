@@ -135,6 +135,18 @@ class BatchedEnv:
         )
         return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
 
+    def to(self, device: torch.device | str) -> BatchedEnv:
+        """Move every tensor of the env (state, tables, random streams) to ``device``."""
+        device = torch.device(device)
+        if device == self.device:
+            return self
+        for name, value in vars(self).items():
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, value.to(device))
+        self.rng = self.rng.to(device)
+        self.device = device
+        return self
+
     def learner_of_row(self) -> torch.Tensor:
         """Learner index of every row: ``[B]``."""
         return torch.arange(self.batch_size, device=self.device) // self.envs_per_learner

@@ -91,7 +91,8 @@ class RunOptions:
         resume: checkpoint to continue from.
         progress: show a progress bar.
         tensorboard: write TensorBoard events.
-        device: torch device of envs and tables.
+        device: torch device of envs, tables, Task-Stacks and random numbers.
+        collector: train from a TorchRL ``Collector``'s frames (``hrl_torch.collector``).
     """
 
     seeds: Sequence[int] = (0,)
@@ -106,6 +107,8 @@ class RunOptions:
     resume: str | None = None
     progress: bool = True
     tensorboard: bool = True
+    device: str = "cpu"
+    collector: bool = False
 
 
 def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
@@ -136,8 +139,10 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         eval_env = domain.make_env(
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend
         )
-    graph = spec.make_graph()
-    learner = spec.make_learner(graph, len(seeds))
+    graph = spec.make_graph().to(opts.device)
+    learner = spec.make_learner(graph, len(seeds)).to(opts.device)
+    env = env.to(opts.device)
+    eval_env = None if eval_env is None else eval_env.to(opts.device)
     evaluator = domain.make_evaluator(config) if domain.make_evaluator else None
     return Trainer(
         env,
@@ -149,6 +154,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         spec.executor,
         logger,
         evaluator,
+        collector=opts.collector,
     )
 
 

@@ -119,6 +119,12 @@ class BatchRNG:
         u2 = self.uniform(extra)
         return torch.sqrt(-2.0 * torch.log(u1)) * torch.cos(2.0 * torch.pi * u2)
 
+    def to(self, device: torch.device | str) -> BatchRNG:
+        """The same streams, drawn on ``device`` (the draws do not depend on the device)."""
+        self.device = torch.device(device)
+        self._row_key = self._row_key.to(self.device)
+        return self
+
     def state_dict(self) -> dict[str, int]:
         """The counter: all a checkpoint needs to continue the stream."""
         return {"counter": self.counter}

@@ -204,12 +204,18 @@ class EvalPlan(nn.Module):
     position in ``order`` of each instance's table (0 for primitives), ``prims [Tp]`` the
     primitive tables and ``prim_node [Tp]`` their nodes; ``choosers [Ic]`` the non-primitive
     instances (``chooser_rank [I]`` the rank of each among them) with their table positions,
-    nodes and depths.
+    nodes and depths. With ``keep [T]`` only those non-primitive tables are planned (the other
+    instances' positions read 0).
     """
 
-    def __init__(self, graph: TaskGraph, layout: TableLayout) -> None:
+    def __init__(
+        self, graph: TaskGraph, layout: TableLayout, keep: torch.Tensor | None = None
+    ) -> None:
         super().__init__()
         groups = layout.groups[1:]
+        if keep is not None:  # only the tables ``keep [T]`` (e.g. a hybrid's value nodes)
+            groups = [ids[keep[ids]] for ids in groups]
+            groups = [ids for ids in groups if len(ids)]
         order = torch.cat(groups) if groups else torch.zeros(0, dtype=torch.long)
         sizes = [len(g) for g in groups]
         starts = [sum(sizes[:k]) for k in range(len(sizes))]

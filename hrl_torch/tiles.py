@@ -69,15 +69,18 @@ def tile_indices(
         gives an index in ``[t * prod(resolution), (t + 1) * prod(resolution))``.
     """
     res = resolution.to(x.dtype)
-    scaled = (x - low) / (high - low) * res  # [..., D] in tile widths
-    shifted = scaled.unsqueeze(-2) + offsets  # [..., T, D]
-    cell = torch.floor(shifted).long()
-    clamped = torch.minimum(cell.clamp_min(0), resolution - 1)
-    cell = torch.where(wrap, torch.remainder(cell, resolution), clamped)
-    strides = _strides(resolution)
-    within = (cell * strides).sum(-1)  # [..., T], row-major over the dimensions
-    per_tiling = int(torch.prod(resolution))
-    return within + torch.arange(offsets.shape[0], device=x.device) * per_tiling
+    scale = res / (high - low)
+    strides = _strides(resolution).to(x.dtype)
+    base = torch.arange(offsets.shape[0], device=x.device) * int(torch.prod(resolution))
+    return _active_tiles(x, low, scale, offsets, res, wrap, strides, base)
+
+
+def _active_tiles(x, low, scale, offsets, res, wrap, strides, base) -> torch.Tensor:
+    """``tile_indices`` on precomputed constants, in float (exact: indices stay below 2^24)."""
+    shifted = ((x - low) * scale).unsqueeze(-2) + offsets  # [..., T, D] in tile widths
+    cell = shifted.floor()
+    cell = torch.where(wrap, cell.remainder(res), torch.minimum(cell.clamp_min(0), res - 1))
+    return (cell * strides).sum(-1).long() + base  # row-major over the dimensions
 
 
 def _strides(resolution: torch.Tensor) -> torch.Tensor:
@@ -128,9 +131,24 @@ class TileCoder(nn.Module):
         self.n_tilings = n_tilings
         self.tiles_per_tiling = math.prod(resolution)
         self.n_features = n_tilings * self.tiles_per_tiling
+        if self.tiles_per_tiling >= 2**24:
+            raise ValueError("a tiling of 2^24 tiles or more is not supported (float indices)")
+        res = self.resolution.float()
+        self.register_buffer("_res", res, persistent=False)
+        self.register_buffer("_scale", res / (self.high - self.low), persistent=False)
+        self.register_buffer("_strides", _strides(self.resolution).float(), persistent=False)
+        base = torch.arange(n_tilings) * self.tiles_per_tiling
+        self.register_buffer("_base", base, persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Active tiles of points ``x [..., D]``: ``[..., T]`` long."""
-        return tile_indices(
-            x.float(), self.low, self.high, self.resolution, self.offsets, self.wrap
+        return _active_tiles(
+            x.float(),
+            self.low,
+            self._scale,
+            self.offsets,
+            self._res,
+            self.wrap,
+            self._strides,
+            self._base,
         )

@@ -132,11 +132,13 @@ class Trainer:
         self.rows = env.learner_of_row()
         self.action: torch.Tensor | None = None
         self.train_seconds = 0.0
-        self._episodes = _EpisodeTracker(env.batch_size, self.P, self.E, self.config.success_key)
+        self._episodes = _EpisodeTracker(
+            env.batch_size, self.P, self.E, self.config.success_key, env.device
+        )
         self.curve: list[tuple[int, list[float]]] = []
         self.first_hit: list[int | None] = [None] * self.P
         # env steps each learner really took (rows being auto-reset take none)
-        self.real_steps = torch.zeros(self.P, dtype=torch.float64)
+        self.real_steps = torch.zeros(self.P, dtype=torch.float64, device=env.device)
         self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
 
     # ------------------------------------------------------------------ stepping
@@ -165,7 +167,7 @@ class Trainer:
         if self.agent.learn:
             self.agent.update(batch)
         self._episodes.add(td)
-        self.real_steps.index_add_(0, self.rows.cpu(), (~td["is_init"]).cpu().double())
+        self.real_steps.index_add_(0, self.rows, (~td["is_init"]).double())
         if self.evaluator is not None:  # continuing tasks: training throughput
             self.evaluator.observe(td, self.rows, self.P)
 
@@ -260,23 +262,24 @@ class Trainer:
         self._eval_rng().load_state_dict({"counter": 0})
         agent = self.evaluation_agent(env, self._eval_rng())
         action = agent.start(env.reset())
-        ret = torch.zeros(env.batch_size)
-        success = torch.zeros(env.batch_size, dtype=torch.bool)
-        finished = torch.zeros(env.batch_size, dtype=torch.bool)
-        length = torch.zeros(env.batch_size)
+        dev = env.device
+        ret = torch.zeros(env.batch_size, device=dev)
+        success = torch.zeros(env.batch_size, dtype=torch.bool, device=dev)
+        finished = torch.zeros(env.batch_size, dtype=torch.bool, device=dev)
+        length = torch.zeros(env.batch_size, device=dev)
         for _ in range(cfg.eval_max_steps):
             td = env.step(action)
-            ret += td["reward"].cpu() * ~finished
+            ret += td["reward"] * ~finished
             length += (~finished).float()
-            ended = (td["terminated"] | td["truncated"]).cpu()
-            success |= _succeeded(td, cfg.success_key).cpu() & ~finished
+            ended = td["terminated"] | td["truncated"]
+            success |= _succeeded(td, cfg.success_key) & ~finished
             finished |= ended
             if bool(finished.all()):
                 break
             action = agent.step(td)
         n = env.envs_per_learner
-        self.last_eval_steps = length.view(-1, n).mean(1)
-        return ret.view(-1, n).mean(1), success.float().view(-1, n).mean(1)
+        self.last_eval_steps = length.view(-1, n).mean(1).cpu()
+        return ret.view(-1, n).mean(1).cpu(), success.float().view(-1, n).mean(1).cpu()
 
     def evaluation_agent(self, env, rng: BatchRNG, transitions: bool = False) -> HierarchicalAgent:
         """A greedy, non-learning agent over ``env``'s rows at the current step (evaluation)."""
@@ -302,7 +305,9 @@ class Trainer:
         return self._eval_rng_state
 
     def _evaluate_and_log(self) -> None:
+        start = time.perf_counter()
         mean, success = self.evaluate()
+        self.eval_seconds = time.perf_counter() - start  # the cost of one evaluation
         values = mean.tolist()
         self._last_success = success.tolist()
         self._last_steps = self.last_eval_steps.tolist()
@@ -313,7 +318,9 @@ class Trainer:
                 self.first_hit[p] = int(self.real_steps[p])
         if self.logger:
             tags = getattr(self.evaluator, "tags", ("charts/eval_return", "charts/eval_success"))
-            self.logger.log(self.step, {tags[0]: values, tags[1]: self._last_success})
+            scalars = {tags[0]: values, tags[1]: self._last_success}
+            scalars["perf/eval_seconds"] = [self.eval_seconds] * self.P
+            self.logger.log(self.step, scalars)
 
     def _log_training(self) -> None:
         extra = self.evaluator.flush() if self.evaluator is not None else {}
@@ -441,41 +448,41 @@ def _ratio(num: torch.Tensor, den: torch.Tensor) -> list[float]:
 
 
 class _EpisodeTracker:
-    """Returns, lengths and successes of finished training episodes, per learner."""
+    """Returns, lengths and successes of finished training episodes, per learner.
+
+    The sums stay on the env's device and are read at each log.
+    """
 
     def __init__(
-        self, batch_size: int, n_learners: int, envs_per_learner: int, success_key: str
+        self, batch_size: int, n_learners: int, envs_per_learner: int, success_key: str, device
     ) -> None:
         self.success_key = success_key
-        self.rows = torch.arange(batch_size) // envs_per_learner
+        self.rows = torch.arange(batch_size, device=device) // envs_per_learner
         self.n_learners = n_learners
-        self.ret = torch.zeros(batch_size)
-        self.length = torch.zeros(batch_size)
-        self.sums = torch.zeros(4, n_learners)  # episodes, return, length, successes
+        self.ret = torch.zeros(batch_size, device=device)
+        self.length = torch.zeros(batch_size, device=device)
+        self.sums = torch.zeros(4, n_learners, device=device)  # episodes, return, length, wins
 
     def add(self, td) -> None:
-        real = (~td["is_init"]).cpu()
-        self.ret += td["reward"].cpu() * real
-        self.length += real.float()
-        ended = ((td["terminated"] | td["truncated"]).cpu() & real).float()
+        real = ~td["is_init"]
+        self.ret += td["reward"] * real
+        self.length += real
+        ended = ((td["terminated"] | td["truncated"]) & real).float()
         values = torch.stack(
-            [
-                ended,
-                self.ret * ended,
-                self.length * ended,
-                _succeeded(td, self.success_key).cpu().float() * ended,
-            ]
+            [ended, self.ret, self.length, _succeeded(td, self.success_key).float()]
         )
-        self.sums.index_add_(1, self.rows, values)
-        self.ret *= 1 - ended
-        self.length *= 1 - ended
+        self.sums.index_add_(1, self.rows, values * ended)
+        keep = 1 - ended
+        self.ret *= keep
+        self.length *= keep
 
     def flush(self) -> dict[str, list[float]]:
-        n = self.sums[0]
+        sums = self.sums.cpu()
+        n = sums[0]
         out = {
-            "charts/episode_return": _ratio(self.sums[1], n),
-            "charts/episode_length": _ratio(self.sums[2], n),
-            "charts/episode_success": _ratio(self.sums[3], n),
+            "charts/episode_return": _ratio(sums[1], n),
+            "charts/episode_length": _ratio(sums[2], n),
+            "charts/episode_success": _ratio(sums[3], n),
         }
         self.sums.zero_()
         return out
@@ -487,7 +494,7 @@ class _EpisodeTracker:
         for k in ("ret", "length", "sums"):
             if state[k].shape != getattr(self, k).shape:
                 raise ValueError(f"episode tracker {k!r} shape mismatch")
-            setattr(self, k, state[k].clone())
+            setattr(self, k, state[k].to(self.rows.device).clone())
 
 
 def hparams_of(**parts) -> dict:

@@ -15,6 +15,7 @@ CASES = {
     "--threshold nan": "argument --threshold: must be a finite number, got nan",
     "--seeds two": "argument --seeds: expected a whole number, got 'two'",
     "--backend gym": "'taxi' has no backend 'gym'; choose from ('torch', 'gymnasium')",
+    "--device tpu9": "argument --device: not a torch device: 'tpu9'",
 }
 
 

@@ -108,20 +108,18 @@ class TabularLearner(Learner):
         return TableBank(self.n_learners, n_states, torch.ones_like(n_states), init)
 
     # ------------------------------------------------------------------ evaluation
-    def composite_rows(self, ctx: StepContext, *banks: TableBank, tables=None):
+    def composite_rows(self, ctx: StepContext, *banks: TableBank):
         """The planned tables' rows at ``ctx``: ``(available, dead, rows of each bank)``.
 
         ``available [B, Tc, A]``: children available (padding False); ``dead [B, Tc]``: the
         table's state is terminal for it or nothing is available (its value is 0); each bank's
-        rows ``[B, Tc, A]`` (unavailable entries read 0). Tables in ``self.plan`` order;
-        ``tables [Tc]`` bool: only these have entries in the banks (the others read 0).
+        rows ``[B, Tc, A]`` (unavailable entries read 0). Tables in ``self.plan`` order.
         """
         plan = self.plan
         available = columns(ctx.available, plan.node)  # padding slots are never available
         dead = columns(ctx.blocked, plan.node) | ~available.any(-1)
         state = columns(ctx.abstract, plan.node)
-        read = available if tables is None else available & tables[:, None]
-        rows = [bank.read(plan.row_index(bank, ctx.learner, state), read) for bank in banks]
+        rows = [bank.read(plan.row_index(bank, ctx.learner, state), available) for bank in banks]
         return available, dead, rows
 
     def primitive_values(self, ctx: StepContext, bank: TableBank) -> torch.Tensor:

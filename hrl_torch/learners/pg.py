@@ -286,13 +286,13 @@ class HPGRLLearner(Learner):
         if rows.numel() == 0:
             return out
         node, gid = node[rows], lookup(self.node_group, node[rows])
+        at = rows * g.n_nodes + node  # (row, node) in the context's flat [B * N, ...] fields
         features = None
         if ctx.features is not None:
-            f = ctx.features.shape[2]
-            features = ctx.features[rows].gather(1, node.view(-1, 1, 1).expand(-1, 1, f))[:, 0]
+            features = ctx.features.view(-1, ctx.features.shape[2]).index_select(0, at)
         inp = PolicyInput(
             base=ctx.learner[rows] * self.total + lookup(self.params.offset, gid),
-            state=ctx.abstract[rows].gather(1, node[:, None]).squeeze(1),
+            state=torch.take(ctx.abstract, at),
             features=features,
             available=available[rows],
             u=u[rows],
@@ -390,7 +390,7 @@ class HPGRLLearner(Learner):
         # line 16: every entry of z weighted by this step's R + r~ now (online), or by its
         # reward-to-go once the cycle ends (Equation 5.2)
         cell = batch["learner"][:, None] * len(self.group_names) + self.node_group[node].clamp(0)
-        self._apply(rows, valid if cfg.online else ended, self.alpha(step), cell)
+        self._apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
         if cfg.frozen and bool(ended.any()):
             gid = self.node_group[node]
             self.cycles.view(-1).index_add_(
@@ -400,7 +400,7 @@ class HPGRLLearner(Learner):
             )
         rows["count"] = count.masked_fill(ended, 0)
 
-    def _apply(self, rows, pairs: torch.Tensor, alpha: float, cell: torch.Tensor) -> None:
+    def _apply_traces(self, rows, pairs: torch.Tensor, alpha: float, cell: torch.Tensor) -> None:
         """``theta += alpha * sum_n w_n g_n`` over the ring entries of the selected (row, depth).
 
         Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).

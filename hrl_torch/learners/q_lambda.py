@@ -38,7 +38,7 @@ from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
 from hrl_torch.ops import lookup
-from hrl_torch.tables import TableBank
+from hrl_torch.tables import EvalPlan, TableBank
 from hrl_torch.validate import check_fraction
 
 
@@ -81,7 +81,7 @@ class QLambdaLearner(TabularLearner):
         self.register_buffer("value_node", value_node, persistent=False)
         ids = lay.composite_ids()
         self.value_tables = ids[value_node[lay.table_node[ids]]]
-        self.register_buffer("_planned_value_node", value_node[self.plan.node], persistent=False)
+        self.plan = EvalPlan(graph, lay, keep=value_node[lay.table_node])  # value nodes only
         depths = sorted({int(d) for d in graph.inst_depth[value_node[graph.inst_node]]})
         self.register_buffer("depths", torch.tensor(depths, dtype=torch.long), persistent=False)
         self._rows: dict[str, torch.Tensor] = {}
@@ -92,12 +92,10 @@ class QLambdaLearner(TabularLearner):
     def evaluate(self, ctx: StepContext) -> None:
         """``Q(i, s, .)`` rows and ``V(i, s) = max_a Q(i, s, a)`` at every value node.
 
-        Rows of other nodes (policy-gradient ones in a hybrid) read 0 and are worth 0.
+        Only the value nodes are planned (``self.plan``); the others are worth 0 here.
         """
-        mine = self._planned_value_node
-        available, dead, (q,) = self.composite_rows(ctx, self.Q, tables=mine)
+        available, dead, (q,) = self.composite_rows(ctx, self.Q)
         best = torch.where(available, q, -torch.inf).amax(-1)
-        dead = dead | ~mine
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
         ctx.values["V"] = value.index_copy_(1, self.plan.order, best.masked_fill(dead, 0.0))
         ctx.values["Q"] = q

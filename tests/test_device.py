@@ -1,0 +1,52 @@
+"""The device option end to end, and the collector path from the CLI."""
+
+import json
+
+import pytest
+import torch
+
+import agents  # noqa: F401  (registers the domains)
+from hrl_torch import registry
+from hrl_torch.cli import main
+from hrl_torch.experiment import RunOptions, build_trainer
+
+
+def _tables_after(steps, **options):
+    opts = RunOptions(seeds=[0, 1], envs_per_learner=8, progress=False, tensorboard=False)
+    for key, value in options.items():
+        setattr(opts, key, value)
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
+    for _ in range(steps):
+        trainer.train_step()
+    trainer.close()
+    return trainer, {k: v.cpu() for k, v in trainer.learner.state_dict().items()}
+
+
+def test_every_tensor_of_a_run_lives_on_the_chosen_device():
+    trainer, _ = _tables_after(3, device="cpu")
+    device = torch.device("cpu")
+    assert trainer.env.device == device and trainer.env.rng._row_key.device == device
+    assert trainer.executor.stack.inst.device == device
+    assert all(b.device == device for b in trainer.learner.buffers())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_learns_the_tables_the_cpu_learns():
+    trainer, on_gpu = _tables_after(200, device="cuda")
+    assert trainer.executor.stack.inst.is_cuda and trainer.env.state.is_cuda
+    _, on_cpu = _tables_after(200, device="cpu")
+    for key, value in on_cpu.items():  # the same choices; float sums may round differently
+        assert torch.allclose(value, on_gpu[key], atol=1e-4), key
+
+
+def test_the_cli_trains_through_the_collector(tmp_path):
+    args = ["train", "taxi", "--algo", "maxq-q", "--seeds", "2", "--envs-per-seed", "8"]
+    args += ["--steps", "800", "--eval-every", "0", "--eval-episodes", "5", "--collector"]
+    args += ["--out", str(tmp_path), "--no-progress", "--no-tensorboard"]
+    assert main(args) == 0
+    (run,) = tmp_path.iterdir()
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["env_steps_per_learner"] >= 800
+    direct, collected = _tables_after(100), _tables_after(100, collector=True)
+    for key, value in direct[1].items():
+        assert torch.equal(value, collected[1][key]), key
