@@ -88,12 +88,22 @@ from envs.four_agv import (
     N_STATUS,
     PICK_UP,
     RIGHT,
+    TABLE_6_1,
     UNLOAD,
     WAREHOUSE_DROP,
+    FourAGVEnv,
+    FourAGVTiming,
     n_flat_states,
     shortest_paths,
 )
+from hrl_torch.continuing import ThroughputEvaluator
+from hrl_torch.executor import ExecutorConfig
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
+from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.trainer import TrainConfig
 
 N_JOBS = 2 * N_STATIONS  # DM_1..4, DA_1..4
 ROOT_STATES = 2**N_JOBS
@@ -130,6 +140,21 @@ class Navigate(Subtask):
     def terminated(self, obs: TensorDict) -> torch.Tensor:
         """At the target."""
         return obs["location"] == self.target
+
+    def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
+        """-1 per move: an internal cost (see ``step_cost``)."""
+        return step_cost(obs, action, next_obs)
+
+
+def step_cost(obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
+    """An internal reward of -1 per primitive step inside ``Nav_t``, ``DM_i`` and ``DA_i``.
+
+    With 1 ms moves a route's length costs almost no time, so time discounting alone does not
+    teach the shortest path; the internal cost does, inside the subtask only (MAXQ's internal
+    completions choose; the external values the root reads stay the deliveries' discounted
+    rewards, Section 3.1).
+    """
+    return -torch.ones(action.shape[0], device=action.device)
 
 
 def _stack(obs: TensorDict, name: str) -> torch.Tensor:
@@ -180,6 +205,7 @@ def _deliver_material(i: int, capacity: int) -> Subtask:
         terminated=terminated,
         child_mask=child_mask,
         event_termination=True,
+        shaping_reward=step_cost,
     )
 
 
@@ -213,6 +239,7 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
         terminated=terminated,
         child_mask=child_mask,
         event_termination=True,
+        shaping_reward=step_cost,
     )
 
 
@@ -450,3 +477,115 @@ DISPATCH_RULES = {
     "hqf": HighestQueueFirst,
     "nsf": NearestStationFirst,
 }
+
+
+# ---------------------------------------------------------------------- experiments (Ch. 6)
+#: discount per second of the multi-agent learners (jobs pay off one assembly, 15-30 s, later)
+GAMMA = 0.97
+COOPERATION = Cooperation((("Root",),), idle="Idle")
+#: cooperation at the root and at the navigation level (Figure 6.8)
+NAV_COOPERATION = Cooperation((("Root",), tuple(f"Nav_{t}" for t in NAV_TARGETS)), idle="Idle")
+
+
+def make_env(
+    seeds,
+    envs_per_learner: int,
+    backend: str = "torch",
+    n_agents: int = 4,
+    capacity: int = CAPACITY,
+    timing: FourAGVTiming = TABLE_6_1,
+) -> FourAGVEnv:
+    """The four-AGV task (or ``n_agents`` AGVs) for ``seeds``.
+
+    Each AGV learns from its own deliveries (``own_rewards``; their sum is the team's).
+    """
+    return FourAGVEnv(seeds, envs_per_learner, n_agents, capacity, timing, own_rewards=True)
+
+
+def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
+    """Assemblies delivered per 1,000 s, greedy (1,000 s after 100 s) and in training.
+
+    The training throughput is the text's curves.
+    """
+    return ThroughputEvaluator(
+        horizon_time=1_000.0, burn_in_time=100.0, scale=1_000.0, unit="assemblies per 1,000 s"
+    )
+
+
+def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
+    return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA)
+
+
+def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+    return EpsilonGreedy(Linear(0.3, 0.02, config.steps // 2))
+
+
+def _rule(name: str, n_agents: int = 4):
+    cls = DISPATCH_RULES[name]
+
+    def learner(graph: TaskGraph, sets: int) -> RuleLearner:
+        return RuleLearner(graph, sets, lambda rows: cls(rows // n_agents, n_agents))
+
+    return learner
+
+
+#: a job or a route that takes 2,000 moves is lost: abort it (no learning target) and go on
+GUARD = ExecutorConfig(max_subtask_steps=2_000, on_timeout="abort")
+_TRAIN = TrainConfig(steps=200_000, eval_every=50_000, eval_episodes=8, log_every=5_000)
+
+
+def _algos() -> dict[str, AlgoSpec]:
+    def spec(make_graph, make_learner, description, multiagent=None, **env_options):
+        return AlgoSpec(
+            make_graph=make_graph,
+            make_learner=make_learner,
+            make_exploration=_epsilon,
+            train=_TRAIN,
+            envs_per_learner=32,
+            executor=GUARD,
+            description=description,
+            multiagent=multiagent,
+            env_options=env_options,
+        )
+
+    joint = MultiAgentConfig(COOPERATION)
+    joint_nav = MultiAgentConfig(NAV_COOPERATION)
+    algos = {
+        "cooperative": spec(
+            lambda: cooperative_graph(four_agv_hierarchy(), COOPERATION, 4),
+            _maxq,
+            "Cooperative HRL: joint completions at the root (Algorithm 4)",
+            joint,
+        ),
+        "cooperative-nav": spec(
+            lambda: cooperative_graph(four_agv_hierarchy(), NAV_COOPERATION, 4),
+            _maxq,
+            "Cooperative HRL at the root and the navigation level (Figure 6.8)",
+            joint_nav,
+        ),
+        "selfish": spec(
+            four_agv_hierarchy, _maxq, "selfish multi-agent HRL: each agent learns alone"
+        ),
+        "single": spec(four_agv_hierarchy, _maxq, "single-agent HRL: one AGV", n_agents=1),
+        "q": spec(
+            lambda: flat_graph(1),
+            lambda g, p: SMDPQLearner(g, p, alpha=0.2, gamma=GAMMA),
+            "flat Q-learning, one AGV, buffer capacity 1 (Figure 6.6)",
+            n_agents=1,
+            capacity=1,
+        ),
+    }
+    for name, cls in DISPATCH_RULES.items():
+        algos[name] = spec(
+            lambda: flat_graph(CAPACITY), _rule(name), f"dispatching rule: {cls.name}"
+        )
+    return algos
+
+
+DOMAIN = DomainSpec(
+    name="four-agv",
+    description="four-AGV scheduling (Figure 6.2, Table 6.1), continuous time, event-driven",
+    make_env=make_env,
+    algos=_algos(),
+    make_evaluator=throughput_evaluator,
+)

@@ -348,6 +348,8 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         rewards: team reward definition.
         max_episode_steps: optional time limit in decision epochs (none: a continuing task).
         device: where the state lives.
+        own_rewards: each agent's reward is its own deliveries (their sum is the team reward);
+            otherwise every agent receives the team's.
     """
 
     state_keys = (
@@ -379,8 +381,10 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         rewards: AGVRewards | None = None,
         max_episode_steps: int | None = None,
         device: torch.device | str = "cpu",
+        own_rewards: bool = False,
     ) -> None:
         super().__init__(seeds, envs_per_learner, n_agents, N_ACTIONS, max_episode_steps, device)
+        self.own_rewards = own_rewards
         if capacity < 1:
             raise ValueError(f"capacity must be >= 1, got {capacity}")
         n, dev, t = N_STATIONS, self.device, timing
@@ -486,6 +490,10 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         self.delivered, self.parts_in = assemblies, parts
         r = self.rewards
         reward = r.assembly * assemblies + r.part * parts + r.rate * dt.float()
+        if self.own_rewards:  # each agent's own deliveries (their sum is the team's reward)
+            own_assemblies, own_parts = self._own
+            rate = r.rate * dt.float()[:, None] / self.n_agents
+            reward = r.assembly * own_assemblies + r.part * own_parts + rate
         terminated = torch.zeros(self.batch_size, dtype=torch.bool, device=self.device)
         return reward, dt, terminated, next_acting
 
@@ -566,6 +574,7 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         moved = self.succ[loc, action.clamp(0, N_MOVES - 1)]
         self.location = torch.where(acting & (action < N_MOVES), moved, loc)
         lost = (returns.sum((1, 2)) - kept.sum((1, 2))).float()
+        self._own = (deliver.float(), dropped.sum(2).float())  # each agent's [B, n]
         return deliver.sum(1).float(), dropped.sum((1, 2)).float(), lost
 
     def _pop_pick_up_ages(self, taken: torch.Tensor) -> None:

@@ -361,6 +361,9 @@ class TrashEnv(MultiAgentBatchedEnv):
         refill_prob: probability that an empty can is refilled at the end of a step.
         max_episode_steps: optional time limit; the task itself is continuing (default none).
         device: where the state lives.
+        own_rewards: each robot learns from its own dumps and costs (their sum is the team
+            reward), not from the team reward: with a shared reward a robot's values carry
+            the other robots' +20s as noise (hrl_torch.multiagent_env).
     """
 
     state_keys = ("location", "carrying", "cans", "dumped", "last_action")
@@ -382,8 +385,10 @@ class TrashEnv(MultiAgentBatchedEnv):
         refill_prob: float = REFILL_PROB,
         max_episode_steps: int | None = None,
         device: torch.device | str = "cpu",
+        own_rewards: bool = False,
     ) -> None:
         super().__init__(seeds, envs_per_learner, n_agents, N_ACTIONS, max_episode_steps, device)
+        self.own_rewards = own_rewards
         if not 0.0 <= refill_prob <= 1.0:
             raise ValueError(f"refill_prob must be in [0, 1], got {refill_prob}")
         self.refill_prob = float(refill_prob)
@@ -422,7 +427,10 @@ class TrashEnv(MultiAgentBatchedEnv):
         b, dev = self.batch_size, self.device
         never = torch.zeros(b, dtype=torch.bool, device=dev)  # continuing
         every = torch.ones_like(acting)  # discrete time: every robot acts at every step
-        return out.reward, torch.ones(b, device=dev), never, every
+        reward = out.reward
+        if self.own_rewards:  # each robot's own dumps and costs; their sum is the team's
+            reward = DUMP_REWARD * out.dumped.float() - ACTION_COST * (action != WAIT).float()
+        return reward, torch.ones(b, device=dev), never, every
 
     def _observe(self) -> dict[str, torch.Tensor]:
         cans = can_code(self.cans)

@@ -30,8 +30,6 @@ from dataclasses import dataclass, field
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.rng import BatchRNG
-
 Metric = Callable[[TensorDict], torch.Tensor]
 
 
@@ -47,6 +45,11 @@ class ThroughputEvaluator:
     Attributes:
         horizon: steps of each greedy evaluation that count.
         burn_in: steps run first and not counted (from the reset state to steady behaviour).
+        horizon_time: instead of a number of steps, count each row's steps that start within
+            ``[burn_in_time, burn_in_time + horizon_time)`` of its time (event-driven envs,
+            whose steps last from a millisecond to seconds); at most ``max_steps`` steps.
+        burn_in_time: time run first and not counted (with ``horizon_time``).
+        max_steps: cap on the steps of a timed evaluation.
         metric: amount of one step ``td -> [B]`` (default: the reward).
         scale: factor applied to amount per unit of time.
         unit: what the scaled throughput counts (for plot labels and the summary).
@@ -56,6 +59,9 @@ class ThroughputEvaluator:
 
     horizon: int = 1_000
     burn_in: int = 100
+    horizon_time: float | None = None
+    burn_in_time: float = 0.0
+    max_steps: int = 200_000
     metric: Metric = reward_metric
     scale: float = 1.0
     unit: str = "reward per unit of time"
@@ -74,15 +80,21 @@ class ThroughputEvaluator:
             raise ValueError("a throughput evaluation needs an eval env (eval_episodes > 0)")
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
-        agent = trainer.evaluation_agent(
-            env, BatchRNG(env.seeds, env.envs_per_learner, "eval-explore")
-        )
+        agent = trainer.evaluation_agent(env, "eval-explore")
         action = agent.start(env.reset())
         sums = torch.zeros(3, env.batch_size, device=env.device)  # amount, reward, time
-        for k in range(self.burn_in + self.horizon):
+        clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
+        end = self.burn_in_time + (self.horizon_time or 0.0)
+        for k in range(self.max_steps if self.horizon_time else self.burn_in + self.horizon):
             td = env.step(action)
-            if k >= self.burn_in:
-                sums += torch.stack([self.metric(td), td["reward"], td["duration"]])
+            if self.horizon_time:  # the window is a span of time: count what starts in it
+                count = (clock >= self.burn_in_time) & (clock < end)
+                clock = clock + td["duration"]
+                if k % 100 == 99 and bool((clock >= end).all()):
+                    break
+            else:
+                count = torch.full_like(clock, k >= self.burn_in, dtype=torch.bool)
+            sums += torch.stack([self.metric(td), td["reward"], td["duration"]]) * count
             action = agent.step(td)
         per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1).cpu()
         throughput, rate = _rates(per_learner, self.scale)

@@ -163,6 +163,9 @@ class HierarchicalExecutor:
         self._root_level = (self.levels == 0)[None, :]
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
+        self._acting: torch.Tensor | None = None  # agent rows acting at this step (observe)
+        #: ``interrupt(popped [B, D], ended_own [B, D]) -> [B, D]``: more levels to cut
+        self.interrupt = None
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
 
     @property
@@ -190,8 +193,10 @@ class HierarchicalExecutor:
         first = f["top"].masked_fill(fresh, 0)  # the level that makes the first choice
         old = f["inst"] + 1
         col = torch.where(fresh, 1, old[:, 0])  # the root (instance 0) of the rows that start
-        going = first >= 0  # the row's stack goes on above this level (after ``observe`` no
-        # primitive is left on top)
+        # the row's stack goes on above this level (after ``observe`` no primitive is left on
+        # top, except on the agent rows that did not act)
+        acting = self._acting if self._acting is not None else torch.ones_like(fresh)
+        going = (first >= 0) & acting
         cols, needs, choices = [col], [], []
         policy.new_step()
         for level in range(1, self.depth):
@@ -218,8 +223,9 @@ class HierarchicalExecutor:
             f[key] = torch.cat([torch.where(chose, new, f[key][:, :-1]), f[key][:, -1:]], 1)
         top = (f["inst"] >= 0).sum(1) - 1
         f["top"] = top
-        self._fresh_levels(f, ctx, first, fresh)
+        self._fresh_levels(f, ctx, first, fresh, acting)
         self.stack = TaskStack.from_tensors(f, self.batch_size)
+        self._acting = None
         if g.action_dim:
             self._action = torch.where((top >= 0)[:, None], f["cont_action"], 0.0)
         else:  # the primitive on top: the last non-empty column
@@ -249,7 +255,7 @@ class HierarchicalExecutor:
             raise GraphError("a continuous primitive was chosen without an action value")
         f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
 
-    def _fresh_levels(self, f: dict, ctx: StepContext, first, rooted) -> None:
+    def _fresh_levels(self, f: dict, ctx: StepContext, first, rooted, acting) -> None:
         """Start states, accumulators and flags of the levels pushed (or re-chosen) this step.
 
         Levels ``first .. top`` of the live rows are fresh: the ones below ``top`` chose a new
@@ -258,7 +264,7 @@ class HierarchicalExecutor:
         """
         g, lv = self.graph, self.levels[None, :]
         top = f["top"]
-        fresh = (lv >= first[:, None]) & (lv <= top[:, None])
+        fresh = (lv >= first[:, None]) & (lv <= top[:, None]) & acting[:, None]
         chose = fresh & (lv < top[:, None])
         invoked = (fresh & (lv > first[:, None])) | (rooted[:, None] & self._root_level)
         node = lookup(g.inst_node, f["inst"].clamp_min(0))
@@ -299,8 +305,12 @@ class HierarchicalExecutor:
         real = ~step_td["is_init"]
         env_term = step_td["terminated"] & real
         env_trunc = step_td["truncated"] & real & ~env_term
+        # multi-agent rows (``hrl_torch.multiagent``): an agent that does not act at this step
+        # is in the middle of its primitive action; its stack waits untouched
+        self._acting = step_td.get("acting", None)
+        stepped = real if self._acting is None else real & self._acting
         inst = f["inst"]
-        active = (inst >= 0) & real[:, None]
+        active = (inst >= 0) & stepped[:, None]
         node = lookup(g.inst_node, inst.clamp_min(0))
         is_prim = lookup(g.node_is_primitive, node) & active
         self._accumulate(f, active, node, reward, tau, ctx)
@@ -310,6 +320,8 @@ class HierarchicalExecutor:
         ended_own = own | is_prim | (active & env_term[:, None])
         timeout = self._timeouts(f, active, is_prim, node)
         cut = ended_own | timeout | (active & env_trunc[:, None])
+        if self.interrupt is not None:  # e.g. the tau_any scheme (hrl_torch.multiagent)
+            cut = cut | (self.interrupt((cut.cumsum(1) > 0) & active, ended_own) & active)
         popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
         emit = active & ~is_prim & _shift_left(popped)
         terminal = (own | env_term[:, None]) & active & ~is_prim
@@ -317,14 +329,15 @@ class HierarchicalExecutor:
         batch = None
         if transitions:
             batch = self._transitions(
-                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, real
+                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, stepped
             )
         if self.config.record_visited:
             self._record_visits(f, active & ~is_prim & ~_shift_left(popped), ctx, node)
 
         self.stats.count_ends(self.learner, node, popped, ended_own & popped, f["inv_steps"])
         f["inst"] = inst.masked_fill(popped, -1)
-        f["top"] = torch.where(real, (active & ~popped).sum(1) - 1, -1)
+        top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
+        f["top"] = top if self._acting is None else torch.where(stepped | ~real, top, f["top"])
         f["done"] = env_term | env_trunc
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         return batch

@@ -21,6 +21,7 @@ from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
+from hrl_torch.multiagent import MultiAgentConfig
 from hrl_torch.runlog import RunLogger, make_run_dir, plot_curves
 from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
 
@@ -39,6 +40,10 @@ class AlgoSpec:
         envs_per_learner: default ``E``.
         executor: executor options.
         description: one line for ``hrl-torch list``.
+        multiagent: on a multi-agent domain, how the agents cooperate (``None``: selfish agents
+            with their own tables); ``make_learner`` then gets the number of table sets.
+        env_options: keyword arguments of the domain's ``make_env`` for this algorithm (e.g.
+            one agent instead of four).
     """
 
     make_graph: Callable[[], TaskGraph]
@@ -48,6 +53,8 @@ class AlgoSpec:
     envs_per_learner: int = 64
     executor: ExecutorConfig = field(default_factory=ExecutorConfig)
     description: str = ""
+    multiagent: MultiAgentConfig | None = None
+    env_options: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -133,14 +140,17 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
     config = replace(spec.train, progress=opts.progress, **changes)
     seeds = list(opts.seeds)
     n_envs = opts.envs_per_learner or spec.envs_per_learner
-    env = domain.make_env(seeds, n_envs, opts.backend)
+    env = domain.make_env(seeds, n_envs, opts.backend, **spec.env_options)
     eval_env = None
     if config.eval_episodes:
         eval_env = domain.make_env(
-            [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend
+            [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
     graph = spec.make_graph().to(opts.device)
-    learner = spec.make_learner(graph, len(seeds)).to(opts.device)
+    sets = len(seeds)
+    if hasattr(env, "n_agents"):  # a multi-agent domain: table sets per seed and agent
+        sets = (spec.multiagent or MultiAgentConfig()).table_sets(len(seeds), env.n_agents)
+    learner = spec.make_learner(graph, sets).to(opts.device)
     env = env.to(opts.device)
     eval_env = None if eval_env is None else eval_env.to(opts.device)
     evaluator = domain.make_evaluator(config) if domain.make_evaluator else None
@@ -155,6 +165,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         logger,
         evaluator,
         collector=opts.collector,
+        multiagent=spec.multiagent,
     )
 
 

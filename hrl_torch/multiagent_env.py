@@ -20,9 +20,11 @@ The output is a TensorDict ``[B]``:
 
   - ``acting`` ``[B, n]``: the agent's action ended at this step, so it chooses now (every agent
     of a row that was reset, terminated or truncated);
-  - ``reward`` / ``duration`` ``[B, n]``: the team reward and the time since the agent's action
+  - ``reward`` / ``duration`` ``[B, n]``: the reward and the time since the agent's action
     started, for acting agents (0 for the others): the reward and duration of the agent's own
-    primitive step, as its SMDP sees it.
+    primitive step, as its SMDP sees it. The reward is the team's, or, when the env returns one
+    reward per agent (``[B, n]``: each agent's own share, their sum the team's), the agent's
+    own share.
 
 ``agent_rows`` flattens a step into ``B * n`` *agent rows* (row ``b * n + j`` is agent ``j`` of
 env row ``b``), each looking like a single-agent step: the agent's fields, the shared fields,
@@ -43,8 +45,9 @@ class MultiAgentBatchedEnv(BatchedEnv):
     """Base class of torch-batched multi-agent domains (see the module docstring).
 
     Subclasses implement ``_reset_rows(mask [B])``, ``_step_all(action [B, n], acting [B, n])
-    -> (team reward [B], duration [B], terminated [B], next acting [B, n])``, ``_observe()`` (the
-    shared fields) and ``_observe_agents()`` (fields ``[B, n, ...]``), and list their state
+    -> (reward [B] or [B, n], duration [B], terminated [B], next acting [B, n])`` (the team's
+    reward, or each agent's own share of it), ``_observe()`` (the shared fields) and
+    ``_observe_agents()`` (fields ``[B, n, ...]``), and list their state
     tensors in ``state_keys``. ``_step_all`` applies the actions of the agents that are
     ``acting`` and advances every row to its next decision epoch. Random numbers: draw the same
     amount for every row whatever its state (``self.rng``), so a learner's stream does not depend
@@ -114,6 +117,10 @@ class MultiAgentBatchedEnv(BatchedEnv):
         self._reset_rows(was_done)
         self.elapsed = torch.where(was_done, 0, self.elapsed)
         zero = torch.zeros((), device=self.device)
+        own = reward.float() if reward.dim() == 2 else None
+        if own is not None:  # each agent's own share; the team's reward is their sum
+            own = own.masked_fill(was_done[:, None], 0.0)
+            reward = own.sum(1)
         reward = torch.where(was_done, zero, reward.float())
         duration = torch.where(was_done, zero, duration.float())
         terminated = terminated & ~was_done
@@ -121,7 +128,7 @@ class MultiAgentBatchedEnv(BatchedEnv):
         self.done = terminated | truncated
         # every agent of a row that ends or restarts acts now (its running action is cut)
         acting = next_acting | (self.done | was_done)[:, None]
-        self.pending_reward += reward[:, None]
+        self.pending_reward += reward[:, None] if own is None else own
         self.pending_time += duration[:, None]
         agent_reward = torch.where(acting, self.pending_reward, zero)
         agent_time = torch.where(acting, self.pending_time, zero)
@@ -170,15 +177,7 @@ class MultiAgentBatchedEnv(BatchedEnv):
 
     def agent_rows(self, td: TensorDict) -> TensorDict:
         """One step as ``B * n`` agent rows (see the module docstring), batch ``[B * n]``."""
-        b, n = self.batch_size, self.n_agents
-        agents = td["agents"]
-        rows = {k: v.reshape(b * n, *v.shape[2:]) for k, v in agents.items()}
-        for key, value in td.items():
-            if key in ("agents", "reward", "duration"):
-                continue
-            rows[key] = value.repeat_interleave(n, dim=0)
-        rows["agent"] = torch.arange(n, device=self.device).repeat(b)
-        return TensorDict(rows, batch_size=[b * n], device=self.device)
+        return agent_rows(td)
 
     def learner_of_agent_row(self) -> torch.Tensor:
         """Learner (seed) of every agent row ``[B * n]``."""
@@ -201,3 +200,24 @@ class MultiAgentBatchedEnv(BatchedEnv):
             if state[k].shape != getattr(self, k).shape:
                 raise ValueError(f"env state {k!r}: shape {tuple(state[k].shape)} mismatch")
             setattr(self, k, state[k].to(self.device).clone())
+
+
+def agent_rows(td: TensorDict) -> TensorDict:
+    """A multi-agent step ``[B]`` as ``B * n`` agent rows (row ``b * n + j``: agent ``j``).
+
+    Each row holds the agent's own fields (``td["agents"]``: its ``reward``, ``duration`` and
+    ``acting`` among them), the shared fields of its env row (the team's step ``reward`` and
+    ``duration`` left out), and ``agent`` (its index). A shared field with the name of an
+    agent field is an error (one would hide the other).
+    """
+    agents = td["agents"]
+    b, n = agents.batch_size
+    rows = {k: v.reshape(b * n, *v.shape[2:]) for k, v in agents.items()}
+    for key, value in td.items():
+        if key in ("agents", "reward", "duration"):
+            continue
+        if key in rows:
+            raise ValueError(f"field {key!r} is both an agent field and a shared field")
+        rows[key] = value.repeat_interleave(n, dim=0)
+    rows["agent"] = torch.arange(n, device=agents.device).repeat(b)
+    return TensorDict(rows, batch_size=[b * n], device=agents.device)

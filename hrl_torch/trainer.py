@@ -22,6 +22,7 @@ from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration, Greedy
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
+from hrl_torch.multiagent import MultiAgentAgent, MultiAgentConfig, agent_rng
 from hrl_torch.rng import BatchRNG
 from hrl_torch.runlog import RunLogger
 
@@ -93,6 +94,7 @@ class Trainer:
             every training step (``observe``) and adds its metrics at each log (``flush``).
         collector: step the env through a TorchRL ``Collector`` and learn from its frames
             (``hrl_torch.collector``); the same tables as the direct loop.
+        multiagent: how the agents of a multi-agent env cooperate (``hrl_torch.multiagent``).
     """
 
     def __init__(
@@ -107,6 +109,7 @@ class Trainer:
         logger: RunLogger | None = None,
         evaluator=None,
         collector: bool = False,
+        multiagent: MultiAgentConfig | None = None,
     ) -> None:
         self.env, self.graph, self.learner = env, graph, learner
         self.collector = collector
@@ -118,17 +121,16 @@ class Trainer:
         self.executor_config = executor_config or ExecutorConfig()
         self.eval_env = eval_env
         self.logger = logger
-        if learner.n_learners != env.n_learners:
-            raise ValueError(f"learner has P={learner.n_learners} but env has {env.n_learners}")
+        self.multiagent = multiagent
+        self.n_agents = getattr(env, "n_agents", None)  # a multi-agent env (Chapter 6)
+        sets = env.n_learners
+        if self.n_agents is not None:
+            sets = (multiagent or MultiAgentConfig()).table_sets(env.n_learners, self.n_agents)
+        if learner.n_learners != sets:
+            raise ValueError(f"learner has {learner.n_learners} table sets, the env needs {sets}")
         self.P, self.E = env.n_learners, env.envs_per_learner
-        self.agent = HierarchicalAgent(
-            graph,
-            learner,
-            exploration,
-            BatchRNG(env.seeds, self.E, "explore"),
-            self.E,
-            self.executor_config,
-        )
+        self.exploration = exploration
+        self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()
         self.action: torch.Tensor | None = None
         self.train_seconds = 0.0
@@ -259,8 +261,7 @@ class Trainer:
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
-        self._eval_rng().load_state_dict({"counter": 0})
-        agent = self.evaluation_agent(env, self._eval_rng())
+        agent = self.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
         action = agent.start(env.reset())
         dev = env.device
         ret = torch.zeros(env.batch_size, device=dev)
@@ -281,28 +282,43 @@ class Trainer:
         self.last_eval_steps = length.view(-1, n).mean(1).cpu()
         return ret.view(-1, n).mean(1).cpu(), success.float().view(-1, n).mean(1).cpu()
 
-    def evaluation_agent(self, env, rng: BatchRNG, transitions: bool = False) -> HierarchicalAgent:
-        """A greedy, non-learning agent over ``env``'s rows at the current step (evaluation)."""
-        agent = HierarchicalAgent(
+    def make_agent(self, env, stream: str, exploration=None, **options) -> HierarchicalAgent:
+        """An agent over ``env``'s rows (a ``MultiAgentAgent`` for a multi-agent env).
+
+        Its random numbers are the stream ``stream`` of the env's seeds.
+        """
+        exploration = self.exploration if exploration is None else exploration
+        e = env.envs_per_learner
+        if self.n_agents is None:
+            rng = BatchRNG(env.seeds, e, stream)
+            args = (self.graph, self.learner, exploration, rng, e, self.executor_config)
+            return HierarchicalAgent(*args, **options)
+        rng = agent_rng(env.seeds, e, self.n_agents, stream).to(env.device)
+        config = self.multiagent or MultiAgentConfig()
+        return MultiAgentAgent(
             self.graph,
             self.learner,
-            Greedy(),
+            exploration,
             rng,
-            env.envs_per_learner,
+            e,
+            self.n_agents,
             self.executor_config,
-            learn=False,
-            evaluate=True,
-            transitions=transitions,
+            cooperation=config.cooperation,
+            scheme=config.scheme,
+            shared_tables=config.shared_tables,
+            **options,
+        )
+
+    def evaluation_agent(self, env, rng_stream: str, transitions: bool = False):
+        """A greedy, non-learning agent over ``env``'s rows at the current step (evaluation).
+
+        Its random numbers (ties) restart from the stream ``rng_stream`` of the env's seeds.
+        """
+        agent = self.make_agent(
+            env, rng_stream, Greedy(), learn=False, evaluate=True, transitions=transitions
         )
         agent.clock = self.step
         return agent
-
-    def _eval_rng(self) -> BatchRNG:
-        if not hasattr(self, "_eval_rng_state"):
-            self._eval_rng_state = BatchRNG(
-                self.eval_env.seeds, self.eval_env.envs_per_learner, "eval-explore"
-            )
-        return self._eval_rng_state
 
     def _evaluate_and_log(self) -> None:
         start = time.perf_counter()
@@ -371,7 +387,6 @@ class Trainer:
         }
         if self.eval_env is not None:
             state["eval_env"] = self.eval_env.state_dict()
-            state["eval_rng"] = self._eval_rng().state_dict()
         if hasattr(self.evaluator, "state_dict"):
             state["evaluator"] = self.evaluator.state_dict()
         return state
@@ -395,7 +410,6 @@ class Trainer:
             self.evaluator.load_state_dict(state.get("evaluator", {}))
         if self.eval_env is not None and "eval_env" in state:
             self.eval_env.load_state_dict(state["eval_env"])
-            self._eval_rng().load_state_dict(state["eval_rng"])
         action = state["action"]
         self.action = None if action.numel() == 0 else action.clone()
         pending = state.get("collector") or {}

@@ -34,7 +34,7 @@ def test_hpgrl_on_a_continuing_task_evaluates_with_its_policy_modes():
     throughput, rate = trainer.evaluate()
     assert torch.isfinite(throughput).all() and torch.isfinite(rate).all()
     assert torch.equal(trainer.learner.theta, before)
-    agent = trainer.evaluation_agent(trainer.eval_env, trainer._eval_rng())
+    agent = trainer.evaluation_agent(trainer.eval_env, "eval-explore")
     assert isinstance(agent.policy, PGPolicy) and agent.policy.greedy  # the heads' modes
 
 
@@ -47,5 +47,5 @@ def test_hybrid_on_a_continuing_task_evaluates():
     trainer = run(hybrid, 400)
     throughput, _ = trainer.evaluate()
     assert torch.isfinite(throughput).all()
-    agent = trainer.evaluation_agent(trainer.eval_env, trainer._eval_rng())
+    agent = trainer.evaluation_agent(trainer.eval_env, "eval-explore")
     assert isinstance(agent.policy, HybridPolicy) and agent.policy.greedy

@@ -48,20 +48,24 @@ EVAL_MAX_STEPS = 30  # episodic evaluation: cap per greedy episode
 EVAL_HORIZON, EVAL_BURN_IN = 20, 5  # continuing tasks: short throughput evaluations
 
 #: (domain, algo) -> reason, for registered entries that learn nothing (heuristic baselines):
-#: skipped. None exists today.
-NON_LEARNING: dict[tuple[str, str], str] = {}
+#: skipped.
+NON_LEARNING: dict[tuple[str, str], str] = {
+    ("four-agv", rule): "a dispatching rule learns nothing" for rule in ("fcfs", "hqf", "nsf")
+}
 #: (domain, algo) -> reason, for learners whose state cannot change within this tiny budget;
 #: every other case must change its learner after the checkpoint (else the case is vacuous).
 #: (HAR and RAR do change: their gains start from a prior and every step costs gain * time.)
 _NO_ASSEMBLY = "no assembly is delivered within the budget: every reward is 0, the tables stay 0"
 STILL_IN_BUDGET: dict[tuple[str, str], str] = {
-    (d, a): _NO_ASSEMBLY for d in ("agv", "agv-ct") for a in ("hdr", "rvi-q")
+    (d, a): _NO_ASSEMBLY
+    for d, algos in (("agv", ("hdr", "rvi-q")), ("agv-ct", ("hdr", "rvi-q")), ("four-agv", ("q",)))
+    for a in algos
 }
 #: domain -> reason, for domains where no running subtask ever holds accumulated reward; every
 #: other hierarchical case must checkpoint running subtasks with nonzero accumulated reward.
 NO_RUNNING_REWARD: dict[str, str] = {
     d: "the only reward (+1 per assembly) comes with the Unload step that ends DA_i"
-    for d in ("agv", "agv-ct")
+    for d in ("agv", "agv-ct", "four-agv")
 }
 
 
@@ -117,6 +121,7 @@ def make(domain: str, algo: str, logger: RunLogger):
     trainer.config.eval_max_steps = EVAL_MAX_STEPS
     if trainer.evaluator is not None:
         trainer.evaluator.horizon, trainer.evaluator.burn_in = EVAL_HORIZON, EVAL_BURN_IN
+        trainer.evaluator.horizon_time = None  # timed windows (event-driven envs): too long
     return trainer
 
 

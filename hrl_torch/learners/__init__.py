@@ -8,6 +8,7 @@ from hrl_torch.learners.maxq import MaxQLearner
 from hrl_torch.learners.pg import ActorCriticLearner, HPGRLLearner, PGConfig, PGPolicy
 from hrl_torch.learners.q_lambda import QLambdaLearner
 from hrl_torch.learners.q_learning import SMDPQLearner
+from hrl_torch.learners.rule import RuleLearner
 from hrl_torch.learners.rvi_q import RVIQLearner
 
 __all__ = [
@@ -23,6 +24,7 @@ __all__ = [
     "PGPolicy",
     "QLambdaLearner",
     "RARLearner",
+    "RuleLearner",
     "RVIQLearner",
     "SMDPQLearner",
     "TabularLearner",
