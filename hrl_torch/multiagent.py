@@ -203,6 +203,8 @@ class MultiAgentAgent(HierarchicalAgent):
         cooperation: the cooperative subtasks (``None``: selfish agents).
         scheme: termination scheme at the first cooperation level.
         shared_tables: the agents of a seed share one table set.
+        first_table: act with the table sets from this one on (one seed of a trained
+            population: ``seed * n``); ``None``: the learner has exactly the sets needed.
     """
 
     def __init__(
@@ -220,6 +222,7 @@ class MultiAgentAgent(HierarchicalAgent):
         cooperation: Cooperation | None = None,
         scheme: Scheme = "continue",
         shared_tables: bool = False,
+        first_table: int | None = None,
     ) -> None:
         if scheme not in ("continue", "any", "all"):
             raise ValueError(f"scheme must be 'continue', 'any' or 'all', got {scheme!r}")
@@ -229,10 +232,13 @@ class MultiAgentAgent(HierarchicalAgent):
             raise ValueError(f"{b} agent rows are not a multiple of {n} agents")
         row = torch.arange(b, device=rng.device)
         seed = row // (envs_per_learner * n)
-        rows = seed if shared_tables else seed * n + row % n
+        first = first_table or 0
+        rows = first + (seed if shared_tables else seed * n + row % n)
         expected = (b // (envs_per_learner * n)) * (1 if shared_tables else n)
-        if learner.n_learners != expected:
+        if first_table is None and learner.n_learners != expected:
             raise ValueError(f"the learner has {learner.n_learners} table sets, {expected} needed")
+        if learner.n_learners < first + expected:
+            raise ValueError(f"the learner has no table sets {first}..{first + expected - 1}")
         super().__init__(
             graph,
             learner,

@@ -41,6 +41,8 @@ class MaxQLearner(TabularLearner):
             executor's ``record_visited``).
         per_instance: tables per Task-Stack context rather than per subtask.
         init: initial completion values (see docs/design.md on initialisation and loops).
+        init_internal: initial internal completions ``C~`` (default: ``init``), e.g.
+            pessimistic ones for subtasks whose internal rewards are step costs.
     """
 
     def __init__(
@@ -52,6 +54,7 @@ class MaxQLearner(TabularLearner):
         all_states: bool = False,
         per_instance: bool = False,
         init: float = 0.0,
+        init_internal: float | None = None,
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.all_states = all_states
@@ -59,7 +62,8 @@ class MaxQLearner(TabularLearner):
             raise GraphError("all-states updating with per-step shaping rewards is not supported")
         self.internal = bool(graph.internal_nodes)
         self.C = self.completion_bank(init)
-        self.C_int = self.completion_bank(init) if self.internal else self.C
+        c_int_init = init if init_internal is None else init_internal
+        self.C_int = self.completion_bank(c_int_init) if self.internal else self.C
         self.V = self.primitive_bank()
         internal = {"C_int": self.C_int} if self.internal else {}
         self.attach_heads(C=self.C, **internal, V=self.V)

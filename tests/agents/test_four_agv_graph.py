@@ -151,17 +151,20 @@ def test_initiation_and_termination_predicates():
 def test_children_are_bound_by_the_status():
     g = four_agv_hierarchy()
     k = g.index["DM_1"]
+    # a load or an unload only where it applies (elsewhere it would do nothing)
     available = g.context(obs_of(warehouse_1=1, location=LOC["J2"])).available[0, k, :5]
-    assert available.tolist() == [True, True, False, False, False]
+    assert available.tolist() == [True, False, False, False, False]
     available = g.context(obs_of(warehouse_1=1, location=BAYS[0])).available[0, k, :5]
     assert available.tolist() == [False, True, False, False, False]
     available = g.context(obs_of(status=1, location=LOC["J2"])).available[0, k, :5]
-    assert available.tolist() == [False, False, True, True, False]
+    assert available.tolist() == [False, False, True, False, False]
+    at_drop = g.context(obs_of(status=1, location=DROP_OFF[0])).available[0, k, :5]
+    assert at_drop.tolist() == [False, False, False, True, False]
     full = g.context(obs_of(status=1, drop_off_1=3, location=DROP_OFF[0])).available[0, k, :5]
-    assert full.tolist() == [False, False, False, True, True]  # unload or wait for room
+    assert full.tolist() == [False, False, False, False, True]  # wait for room
     k = g.index["DA_2"]
     available = g.context(obs_of(status=6, location=LOC["P2"])).available[0, k, :4]
-    assert available.tolist() == [False, False, True, True]
+    assert available.tolist() == [False, False, True, False]
     root = g.context(obs_of(pick_up_3=2)).available[0, g.root, :9]
     assert root.tolist() == [False] * 6 + [True, False, True]  # DA_3 or Idle
 
