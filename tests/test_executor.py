@@ -2,9 +2,10 @@ import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tensordict import TensorDict
 
 from hrl_torch.agent import with_values
-from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
+from hrl_torch.executor import Choice, ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
 from hrl_torch.exploration import EpsilonGreedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, ValuePolicy
@@ -35,8 +36,9 @@ def run_checked(graph, env, steps, check_step):
         batch = ex.observe(td, ctx)
         check_step("observe", ex, ctx, td, batch, before)
         learner.update(with_values(batch, ctx), 0)
+        before = (ex.stack.inst.clone(), ex.stack.top.clone(), ex.stack.child.clone())
         ex.act(ctx, policy, 0)
-        check_step("act", ex, ctx, td, None, None)
+        check_step("act", ex, ctx, td, None, before)
 
 
 def check_invariants(graph):
@@ -60,6 +62,13 @@ def check_invariants(graph):
                     assert not bool(ctx.terminated[b, graph.inst_node[inst]])
             # empty stacks only for rows whose episode just ended
             assert (live | ex.stack.done).all()
+            # act only pushes: the levels left after the pops keep their instances, and the
+            # ones below the top their children
+            stack, top, child = before
+            for b in (top >= 0).nonzero().squeeze(1).tolist():
+                t = int(top[b])
+                assert torch.equal(ex.stack.inst[b, : t + 1], stack[b, : t + 1])
+                assert torch.equal(ex.stack.child[b, :t], child[b, :t])
             return
         stack, top = before
         real = ~td["is_init"]
@@ -146,6 +155,14 @@ def test_runaway_subtask_raises_or_aborts():
             assert root_ends == [[t == 0, t == 0] for t in expected_top]
             # Loop pushed 3 times per row (step 0, after step 7, after step 14), 2 rows
             assert int(ex.stats.calls[0, graph.index["Loop"]]) == 6
+            # finished invocations, successes and lengths: a0 ends (succeeds) every step after
+            # 1 step; Loop is cut by the guard twice per row after 7 steps (no success); the
+            # root never ends, so it has no length
+            stats = {k: getattr(ex.stats, k)[0].tolist() for k in ex.stats.FIELDS}
+            root, lp, a0 = (graph.index[n] for n in ("Root", "Loop", "a0"))
+            assert [stats[k][a0] for k in ("ends", "successes", "durations")] == [40, 40, 40]
+            assert [stats[k][lp] for k in ("ends", "successes", "durations")] == [4, 0, 28]
+            assert [stats[k][root] for k in ("ends", "successes", "durations")] == [0, 0, 0]
 
 
 def test_no_available_child_is_a_clear_error():
@@ -171,3 +188,89 @@ def test_nan_reward_is_a_clear_error():
     env.reward_table[:] = float("nan")
     with pytest.raises(ValueError, match="returned reward nan and duration"):
         run_checked(graph, env, 3, lambda *a: None)
+
+
+def test_observe_and_act_never_write_into_the_stack_they_were_given():
+    # the executor replaces its stack at every call; a stack handed out earlier (a rollout
+    # TensorDict holds one per frame) keeps its values
+    graph = random_hierarchy(3, 6, 3, 1)
+    env = random_table_env(6, 3, 1, envs_per_learner=4, seeds=(1, 2), max_episode_steps=30)
+    learner = MaxQLearner(graph, env.n_learners)
+    policy = ValuePolicy(learner, EpsilonGreedy(0.5), BatchRNG(env.seeds, 4, "x"))
+    config = ExecutorConfig(max_subtask_steps=20, on_timeout="abort", record_visited=3)
+    ex = HierarchicalExecutor(graph, env.batch_size, 4, gamma=0.9, config=config)
+    rows = env.learner_of_row()
+    ctx = graph.context(env.reset(), rows)
+    learner.evaluate(ctx)
+    ex.act(ctx, policy, 0)
+    pops = 0
+    for _ in range(40):
+        td = env.step(ex._action)
+        ctx = graph.context(td, rows)
+        learner.evaluate(ctx)
+        for call in ("observe", "act"):
+            old = ex.stack
+            kept = old.state_dict()  # cloned
+            if call == "observe":
+                batch = ex.observe(td, ctx)
+                learner.update(with_values(batch, ctx), 0)
+                pops += int((ex.stack.inst < 0).sum() - (old.inst < 0).sum())
+            else:
+                ex.act(ctx, policy, 0)
+            assert ex.stack is not old
+            for key, value in old.to_dict().items():
+                assert torch.equal(value, kept[key]), (call, key)
+    assert pops > 0  # stacks did pop (the test saw changes to keep out of the old stack)
+
+
+@pytest.mark.parametrize("per_instance", [False, True])
+def test_value_policy_choosing_for_all_instances_equals_choosing_level_by_level(per_instance):
+    # ValuePolicy chooses at every choosing instance at once, the instance at depth d reading
+    # the uniforms of level d: the same choices as asking the learner level by level
+    from agents.taxi import taxi_hierarchy
+    from envs.taxi import TaxiEnv
+    from hrl_torch.agent import HierarchicalAgent
+
+    def run(all_at_once):
+        graph, seeds = taxi_hierarchy(), [3, 4]
+        env = TaxiEnv(seeds, 3)
+        learner = MaxQLearner(graph, len(seeds), per_instance=per_instance)
+        rng = BatchRNG(seeds, 3, "explore")
+        agent = HierarchicalAgent(graph, learner, EpsilonGreedy(0.3), rng, 3)
+        assert agent.policy.all_at_once
+        agent.policy.all_at_once = all_at_once
+        actions = [agent.start(env.reset())]
+        for _ in range(150):
+            actions.append(agent.step(env.step(actions[-1])))
+        return torch.stack(actions), learner.C.store
+
+    at_once, per_level = run(True), run(False)
+    assert torch.equal(at_once[0], per_level[0])
+    assert torch.equal(at_once[1], per_level[1])
+
+
+def test_a_continuous_primitive_takes_the_action_chosen_with_its_push():
+    # Root calls the continuous primitive Move directly (row 0) or through Sub (row 1, one
+    # level deeper): the env gets the action value chosen with Move's push, however deep the
+    # stacks can grow above it
+    nodes = [
+        Subtask("Root", ["Move", "Sub"]),
+        Subtask("Sub", ["Move"]),
+        Primitive("Move", action_dim=1),
+    ]
+    graph = TaskGraph("Root", nodes)
+
+    class ByRow:
+        def new_step(self):
+            pass
+
+        def select(self, inst, ctx, available, step, push):
+            row = torch.arange(inst.shape[0])
+            child = torch.where(inst == 0, row % 2, 0)
+            action = (10.0 * (push + 1) + row)[:, None]  # the push level and the row
+            return Choice(child, torch.ones_like(child, dtype=torch.bool), action)
+
+    ex = HierarchicalExecutor(graph, 2, 2)
+    action = ex.act(graph.context(TensorDict({}, batch_size=[2])), ByRow(), 0)
+    assert ex.stack.top.tolist() == [1, 2]
+    assert action[:, 0].tolist() == [10.0, 21.0]

@@ -137,3 +137,52 @@ def test_memory_nodes_see_where_their_invocation_started():
     assert not ctx.blocked[:, hop_k].any()  # a memory node never blocks a start
     pr = g.internal_rewards_at_termination(o, memory)
     assert pr[:, hop_k].tolist() == [2.0, 0.0]
+
+
+def _tabulable_graph(n_states):
+    """Every kind of predicate, all functions of the integer ``observation`` alone."""
+
+    def x(o):
+        return o["observation"]
+
+    by_state = Subtask(
+        "ByState",
+        ["go", "stay"],
+        n_states=4,
+        abstract=lambda o: x(o) // 3,
+        terminated=lambda o: x(o) % 4 == 0,
+        initiable=lambda o: x(o) < n_states - 2,
+        features=lambda o: torch.stack([x(o) / n_states, (x(o) % 2).float()], 1),
+        n_features=2,
+    )
+    by_event = Subtask(
+        "ByEvent", ["go"], terminated=lambda o: x(o) % 3 == 1, event_termination=True
+    )
+    masked = Subtask(
+        "Masked",
+        ["go", "stay"],
+        terminated=lambda o: x(o) == n_states - 1,
+        child_mask=lambda o: torch.stack([x(o) % 2 == 0, x(o) % 2 == 1], 1),
+    )
+    root = Subtask(
+        "Root", ["ByState", "ByEvent", "Masked"], n_states=3, abstract=lambda o: x(o) % 3
+    )
+    prims = [Primitive("go", 0), Primitive("stay", 1, n_states, x)]
+    return TaskGraph("Root", [root, by_state, by_event, masked, *prims], n_actions=2)
+
+
+def test_a_tabulated_graph_looks_up_exactly_the_context_it_would_compute():
+    n = 12
+    plain, tabulated = _tabulable_graph(n), _tabulable_graph(n)
+    tabulated.tabulate(obs(n, observation=torch.arange(n)))
+    batch = obs(
+        3 * n, observation=torch.randperm(3 * n, generator=torch.Generator().manual_seed(0)) % n
+    )
+    want, got = plain.context(batch), tabulated.context(batch)
+    # the event node makes terminated and blocked differ (so the test can tell them apart)
+    assert not torch.equal(want.terminated, want.blocked)
+    for field in ("abstract", "terminated", "blocked", "available", "features"):
+        assert torch.equal(getattr(got, field), getattr(want, field)), field
+    # only every state once, in order, can be tabulated
+    with pytest.raises(GraphError, match="every state once"):
+        _tabulable_graph(n).tabulate(obs(n, observation=torch.arange(n).flip(0)))
