@@ -95,6 +95,7 @@ from envs.four_agv import (
     FourAGVTiming,
     n_flat_states,
     shortest_paths,
+    successors,
 )
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.executor import ExecutorConfig
@@ -108,6 +109,7 @@ from hrl_torch.trainer import TrainConfig
 N_JOBS = 2 * N_STATIONS  # DM_1..4, DA_1..4
 ROOT_STATES = 2**N_JOBS
 NAV_STATES = N_LOCATIONS
+_SUCC = successors()  # [location, move] -> next location
 NAV_TARGETS = {
     **{f"W_{i + 1}": BAYS[i] for i in range(N_STATIONS)},
     **{f"D_{i + 1}": DROP_OFF[i] for i in range(N_STATIONS)},
@@ -140,6 +142,11 @@ class Navigate(Subtask):
     def terminated(self, obs: TensorDict) -> torch.Tensor:
         """At the target."""
         return obs["location"] == self.target
+
+    def child_mask(self, obs: TensorDict) -> torch.Tensor:
+        """The moves that move (a turn away from a branch would do nothing)."""
+        loc = obs["location"]
+        return _SUCC.to(loc.device)[loc] != loc[:, None]
 
     def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
         """-1 per move: an internal cost (see ``step_cost``)."""

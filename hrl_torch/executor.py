@@ -106,14 +106,11 @@ class ExecutorConfig:
             what it called) and carry on; aborted children produce no learning target.
         record_visited: keep the last ``L`` states visited during each child for all-states
             updating (0 = off).
-        fixed_pushes: always run ``D - 1`` push rounds instead of stopping when no row needs
-            another push (no device sync per round: for GPUs).
     """
 
     max_subtask_steps: int = 10_000
     on_timeout: Literal["raise", "abort"] = "raise"
     record_visited: int = 0
-    fixed_pushes: bool = False
 
 
 class HierarchicalExecutor:

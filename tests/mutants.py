@@ -480,9 +480,9 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "eval-rng-not-restarted",
         "hrl_torch/trainer.py",
-        '        self._eval_rng().load_state_dict({"counter": 0})\n',
-        "",
-        "greedy evaluation's tie-breaking draws do not restart (evaluations differ)",
+        'agent = self.evaluation_agent(env, "eval-explore")',
+        'agent = self.evaluation_agent(env, f"eval-explore-{self.step}")',
+        "greedy evaluation's tie-breaking draws differ from one evaluation to the next",
         ("tests/test_population.py",),
     ),
     Mutant(
