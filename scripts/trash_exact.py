@@ -40,7 +40,8 @@ def observe_states(n_agents: int):
         env.dumped = torch.zeros_like(env.carrying)
         env.last_action = torch.full_like(env.location, 7)
         zero = torch.zeros(m)
-        return env._output(zero, zero, zero.bool(), zero.bool(), zero.bool(), zero[:, None])
+        agent_time = torch.zeros(m, n_agents)
+        return env._output(zero, zero, zero.bool(), zero.bool(), zero.bool(), agent_time)
 
     return observe
 
