@@ -204,3 +204,45 @@ def test_four_agv_joint_root_table_has_the_texts_shape():
     assert root.n_states == 256 * 9**3 and len(root.children_names) == 9
     assert g.node("DM_1").n_states == 7_200 and g.node("DA_1").n_states == 3_600
     assert g.node("Nav_W_1").n_states == 100
+
+
+def test_the_joint_chain_of_a_fixed_joint_policy_has_the_models_gain():
+    # two robots each following a fixed random table over the joint state (a flat graph whose
+    # root picks the primitive): the chain explored through the executor must have exactly
+    # the gain of the model's own chain for that joint policy
+    from envs.trash import TrashEnv, decode, exact_model
+    from hrl_torch.analysis import markov_chain_gain
+    from hrl_torch.analysis.joint import FirstGreedy, chain_gain, joint_chain
+    from hrl_torch.learners import RuleLearner
+
+    model = exact_model(2)
+    table = torch.randint(0, 7, (model.n_states, 2), generator=torch.Generator().manual_seed(3))
+    root = Subtask("Root", [f"a{k}" for k in range(7)])
+    g = TaskGraph("Root", [root, *(Primitive(f"a{k}", k) for k in range(7))], n_actions=7)
+
+    def rule(rows):
+        return lambda obs: table[obs["observation"], obs["agent"]]
+
+    learner = RuleLearner(g, 2, rule)
+
+    def make_agent(m):
+        rng = agent_rng([0], m, 2, "x")
+        return MultiAgentAgent(g, learner, FirstGreedy(), rng, m, 2, learn=False, evaluate=True)
+
+    def observe(states):
+        env = TrashEnv([0], len(states), 2)
+        d = decode(states, 2)
+        env.location, env.carrying, env.cans = d["location"], d["carrying"].bool(), d["cans"]
+        env.cans = env.cans.bool()
+        zero = torch.zeros(len(states))
+        flag = zero.bool()
+        return env._output(zero, zero, flag, flag, flag, torch.zeros(len(states), 2))
+
+    start = model.start_distribution()
+    chain = joint_chain(
+        make_agent, model.next_state, model.prob, model.reward, model.joint_action, observe, start
+    )
+    p, r = model.chain(model.joint_action(table))
+    expected = float(start @ markov_chain_gain(p, r).gain)
+    assert abs(chain_gain(chain) - expected) < 1e-8
+    assert len(chain.reward) > 100  # the chain went somewhere
