@@ -72,6 +72,9 @@ class DomainSpec:
         make_evaluator: ``(train_config) -> evaluator`` replacing the episodic evaluation
             (continuing tasks: ``hrl_torch.continuing.ThroughputEvaluator``); the eval env then
             has ``eval_episodes`` rows per learner.
+        make_eval_env: the evaluation env's factory when it differs from the training env's
+            (e.g. training restarts a continuing task now and then to see every start
+            state; evaluation measures the long run without restarts). Default: ``make_env``.
     """
 
     name: str
@@ -82,6 +85,7 @@ class DomainSpec:
     reference: dict[str, float] = field(default_factory=dict)
     description: str = ""
     make_evaluator: Callable[[TrainConfig], object] | None = None
+    make_eval_env: EnvFactory | None = None
 
 
 @dataclass
@@ -143,7 +147,8 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
     env = domain.make_env(seeds, n_envs, opts.backend, **spec.env_options)
     eval_env = None
     if config.eval_episodes:
-        eval_env = domain.make_env(
+        make_eval_env = domain.make_eval_env or domain.make_env
+        eval_env = make_eval_env(
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
     graph = spec.make_graph().to(opts.device)

@@ -7,7 +7,7 @@ Task-Stacks) explored by running the learned agents) and compares with the best 
 flat joint MDP (an upper bound for any policy). Writes ``runs/trash_exact/table.md`` and
 ``results.json``.
 
-    python scripts/trash_exact.py [--seeds 5] [--steps 150000]
+    python scripts/trash_exact.py [--seeds 5] [--steps 150000] [--refill 0.1]
 """
 
 from __future__ import annotations
@@ -16,12 +16,13 @@ import argparse
 import json
 import statistics
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from envs.trash import TrashEnv, decode, exact_model
+from envs.trash import REFILL_PROB, TrashEnv, decode, exact_model
 from hrl_torch import registry
 from hrl_torch.analysis.joint import FirstGreedy, chain_gain, joint_chain, optimal_gain
 from hrl_torch.experiment import RunOptions, build_trainer
@@ -46,9 +47,9 @@ def observe_states(n_agents: int):
     return observe
 
 
-def exact_gains(trainer, algo: str, n_agents: int) -> list[float]:
+def exact_gains(trainer, algo: str, n_agents: int, refill_prob: float) -> list[float]:
     """The exact gain of each seed's greedy joint policy."""
-    model = exact_model(n_agents)
+    model = exact_model(n_agents, refill_prob)
     config = registry.get("trash").algos[algo].multiagent or MultiAgentConfig()
     gains = []
     for p in range(trainer.P):
@@ -85,6 +86,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=150_000)
+    parser.add_argument("--refill", type=float, default=REFILL_PROB, help="can refill probability")
     parser.add_argument("--out", default="runs/trash_exact")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -96,13 +98,13 @@ def main() -> None:
         opts = RunOptions(
             seeds=list(range(args.seeds)), steps=args.steps, progress=False, tensorboard=False
         )
-        trainer = build_trainer(registry.get("trash"), algo, opts)
+        trainer = build_trainer(_with_refill(algo, args.refill), algo, opts)
         trainer.config.eval_every = 0
         trainer.train()
-        gains = exact_gains(trainer, algo, n)
+        gains = exact_gains(trainer, algo, n, args.refill)
         results[algo] = {"gains": gains, "seconds": time.perf_counter() - start}
         print(algo, [round(g, 3) for g in gains], flush=True)
-    best = {n: optimal_gain(*_model(n)) for n in (1, 2)}
+    best = {n: optimal_gain(*_model(n, args.refill)) for n in (1, 2)}
     results["optimal"] = {"two robots": best[2], "one robot": best[1]}
     rows = [
         "| algorithm | robots | exact gain per seed | mean ± sd |",
@@ -115,15 +117,23 @@ def main() -> None:
         rows.append(f"| {algo} | {n} | {cells} | {statistics.mean(g):.3f} ± {sd:.3f} |")
     rows.append(f"| best joint policy (flat MDP, upper bound) | 2 | | {best[2]:.3f} |")
     rows.append(f"| best single robot (flat MDP) | 1 | | {best[1]:.3f} |")
-    text = "\n".join(rows)
+    text = f"Refill probability {args.refill}, {args.steps} steps per seed.\n\n" + "\n".join(rows)
     (out / "table.md").write_text(text + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))
     print(text)
 
 
-def _model(n: int):
-    model = exact_model(n)
+def _model(n: int, refill_prob: float):
+    model = exact_model(n, refill_prob)
     return model.next_state, model.prob, model.reward
+
+
+def _with_refill(algo: str, refill_prob: float):
+    """The trash domain with ``algo``'s env options changed to ``refill_prob``."""
+    domain = registry.get("trash")
+    spec = domain.algos[algo]
+    spec = replace(spec, env_options={**spec.env_options, "refill_prob": refill_prob})
+    return replace(domain, algos={**domain.algos, algo: spec})
 
 
 if __name__ == "__main__":

@@ -195,6 +195,15 @@ def test_a_population_of_multi_agent_learners_equals_separate_runs(algo):
     assert together.learner.C.data.ne(-10.0).any()  # learned: not vacuous
 
 
+def test_trash_training_restarts_and_evaluation_runs_the_long_run():
+    trainer = _trash_trainer([0], "selfish")
+    assert trainer.env.max_episode_steps == 100
+    assert trainer.eval_env is not None and trainer.eval_env.max_episode_steps is None
+    for _ in range(101):
+        trainer.train_step()
+    assert trainer.env.elapsed.max() < 100  # every row restarted once
+
+
 def test_four_agv_joint_root_table_has_the_texts_shape():
     from agents.four_agv import COOPERATION, four_agv_hierarchy
 
