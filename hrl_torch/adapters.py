@@ -48,9 +48,14 @@ class GymnasiumBatchEnv:
         self.done = torch.zeros(self.batch_size, dtype=torch.bool)
         self._obs: list = [None] * self.batch_size
 
+    def to(self, device: torch.device | str) -> GymnasiumBatchEnv:
+        """Hand out the observations on ``device`` (the gymnasium envs stay in Python)."""
+        self.device = torch.device(device)
+        return self
+
     def learner_of_row(self) -> torch.Tensor:
         """Learner index of every row: ``[B]``."""
-        return torch.arange(self.batch_size) // self.envs_per_learner
+        return torch.arange(self.batch_size, device=self.device) // self.envs_per_learner
 
     def reset(self) -> TensorDict:
         """Reset every env (seeded on the first call)."""
@@ -94,7 +99,7 @@ class GymnasiumBatchEnv:
             truncated=truncated,
             is_init=is_init,
         )
-        return TensorDict(fields, batch_size=[self.batch_size])
+        return TensorDict(fields, batch_size=[self.batch_size]).to(self.device)
 
     def state_dict(self) -> dict:
         """Gymnasium envs cannot be checkpointed exactly; resuming restarts their episodes."""

@@ -30,6 +30,12 @@ def test_every_tensor_of_a_run_lives_on_the_chosen_device():
     assert all(b.device == device for b in trainer.learner.buffers())
 
 
+def test_the_gymnasium_backend_runs_through_the_same_trainer():
+    trainer, tables = _tables_after(30, backend="gymnasium")
+    assert trainer.env.learner_of_row().device == torch.device("cpu")
+    assert any(t.ne(t.flatten()[0]).any() for t in tables.values())  # it learned something
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_cuda_learns_the_tables_the_cpu_learns():
     trainer, on_gpu = _tables_after(200, device="cuda")
