@@ -593,6 +593,14 @@ def _algos() -> dict[str, AlgoSpec]:
             four_agv_hierarchy, _maxq, "selfish multi-agent HRL: each agent learns alone"
         ),
         "single": spec(four_agv_hierarchy, _maxq, "single-agent HRL: one AGV", n_agents=1),
+        # Figure 6.6: the graph's masks, initiation and root state read the capacity too
+        "single-c1": spec(
+            lambda: four_agv_hierarchy(1),
+            _maxq,
+            "single-agent HRL, one AGV, buffer capacity 1 (Figure 6.6)",
+            n_agents=1,
+            capacity=1,
+        ),
         "q": spec(
             lambda: flat_graph(1),
             lambda g, p: SMDPQLearner(g, p, alpha=0.2, gamma=GAMMA),

@@ -5,7 +5,8 @@ of the ``four-agv`` domain, some with changed env options:
 
 - Figure 6.4: Cooperative HRL, selfish multi-agent HRL, single-agent HRL (Table 6.1 timing);
 - Figure 6.5: Cooperative and selfish HRL with 2 s primitive actions (``FIGURE_6_5``);
-- Figure 6.6: flat Q-learning and single-agent HRL, one AGV, buffer capacity 1;
+- Figure 6.6: flat Q-learning and single-agent HRL, one AGV, buffer capacity 1 (``q``,
+  ``single-c1``: the task graph needs the capacity too, not only the env);
 - Figure 6.7: Cooperative HRL and the dispatching rules FCFS, HQF, NSF;
 - Figure 6.8: cooperation at the root against the root and the navigation level.
 
@@ -36,7 +37,7 @@ TRAIN = "charts/throughput"
 FIGURES = {
     "fig_6_4": [("cooperative", {}), ("selfish", {}), ("single", {})],
     "fig_6_5": [("cooperative", {"timing": FIGURE_6_5}), ("selfish", {"timing": FIGURE_6_5})],
-    "fig_6_6": [("q", {}), ("single", {"capacity": 1})],
+    "fig_6_6": [("q", {}), ("single-c1", {})],
     "fig_6_7": [("cooperative", {}), ("fcfs", {}), ("hqf", {}), ("nsf", {})],
     "fig_6_8": [("cooperative", {}), ("cooperative-nav", {})],
 }
