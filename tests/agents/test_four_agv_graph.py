@@ -186,6 +186,17 @@ def test_registered_graphs_read_their_env_s_capacity():
         assert flags(g, "DM_1", warehouse_1=1, drop_off_1=capacity) == (False, True), name
 
 
+def test_internal_init_lies_between_the_longest_route_and_endless_moving():
+    from agents.four_agv import GAMMA, LONGEST_ROUTE, internal_init
+    from envs.four_agv import TABLE_6_1
+
+    for timing in (TABLE_6_1, FIGURE_6_5):
+        per_move = GAMMA**timing.action_mean
+        endless = -1 / (1 - per_move)
+        assert endless < internal_init(timing) <= -sum(per_move**k for k in range(40))
+    assert internal_init(TABLE_6_1) == pytest.approx(-LONGEST_ROUTE, abs=0.1)
+
+
 # ---------------------------------------------------------------- rollouts
 def noisy_rollout(rule_cls, steps, epsilon, seeds=(0, 1), e=4, timing=None):
     """Agent rows visited by a dispatcher whose actions are replaced at random w.p. epsilon."""
