@@ -78,6 +78,7 @@ from envs.four_agv import (
     CAPACITY,
     DROP_OFF,
     EMPTY,
+    FIGURE_6_5,
     FORWARD,
     IDLE,
     LEFT,
@@ -536,10 +537,33 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
     )
 
 
-def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
-    # internal completions (step costs inside Nav/DM/DA, about -40 at most) start pessimistic:
-    # with 0 the greedy policy prefers untried moves and loops where exploration did not go
-    return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA, init_internal=-50.0)
+#: moves round the outer loop, the longest route (``envs.four_agv``)
+LONGEST_ROUTE = 50
+
+
+def internal_init(timing: FourAGVTiming = TABLE_6_1) -> float:
+    """Initial internal completions: the discounted step cost of the longest route.
+
+    Internal completions (step costs inside Nav/DM/DA) start pessimistic: with 0 the greedy
+    policy prefers untried moves and loops where exploration did not go. But not below the
+    value of moving round in circles forever, ``-1 / (1 - GAMMA**tau)``: then every move that
+    has been tried, a loop included, looks better than one that has not. With 1 ms moves that
+    bound is far away (-32,831) and the init is about -50; with the 2 s moves of Figure 6.5 it
+    is -16.9, and an init of -50 kept the AGVs circling the loops with their loads (the
+    untried turn into a branch stayed below the tried ``Forward``): there the init is -16.1.
+    """
+    per_move = GAMMA**timing.action_mean
+    return -sum(per_move**k for k in range(LONGEST_ROUTE))
+
+
+def _maxq(timing: FourAGVTiming = TABLE_6_1):
+    """MAXQ-Q for the primitives' ``timing`` (``internal_init``)."""
+
+    def learner(graph: TaskGraph, sets: int) -> MaxQLearner:
+        init = internal_init(timing)
+        return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA, init_internal=init)
+
+    return learner
 
 
 def _epsilon(config: TrainConfig) -> EpsilonGreedy:
@@ -579,20 +603,42 @@ def _algos() -> dict[str, AlgoSpec]:
     algos = {
         "cooperative": spec(
             lambda: cooperative_graph(four_agv_hierarchy(), COOPERATION, 4),
-            _maxq,
+            _maxq(),
             "Cooperative HRL: joint completions at the root (Algorithm 4)",
             joint,
         ),
         "cooperative-nav": spec(
             lambda: cooperative_graph(four_agv_hierarchy(), NAV_COOPERATION, 4),
-            _maxq,
+            _maxq(),
             "Cooperative HRL at the root and the navigation level (Figure 6.8)",
             joint_nav,
         ),
         "selfish": spec(
-            four_agv_hierarchy, _maxq, "selfish multi-agent HRL: each agent learns alone"
+            four_agv_hierarchy, _maxq(), "selfish multi-agent HRL: each agent learns alone"
         ),
-        "single": spec(four_agv_hierarchy, _maxq, "single-agent HRL: one AGV", n_agents=1),
+        "single": spec(four_agv_hierarchy, _maxq(), "single-agent HRL: one AGV", n_agents=1),
+        # Figure 6.5: 2 s primitive actions (the learner's init depends on the timing)
+        "cooperative-2s": spec(
+            lambda: cooperative_graph(four_agv_hierarchy(), COOPERATION, 4),
+            _maxq(FIGURE_6_5),
+            "Cooperative HRL, 2 s primitive actions (Figure 6.5)",
+            joint,
+            timing=FIGURE_6_5,
+        ),
+        "selfish-2s": spec(
+            four_agv_hierarchy,
+            _maxq(FIGURE_6_5),
+            "selfish multi-agent HRL, 2 s primitive actions (Figure 6.5)",
+            timing=FIGURE_6_5,
+        ),
+        # Figure 6.6: the graph's masks, initiation and root state read the capacity too
+        "single-c1": spec(
+            lambda: four_agv_hierarchy(1),
+            _maxq(),
+            "single-agent HRL, one AGV, buffer capacity 1 (Figure 6.6)",
+            n_agents=1,
+            capacity=1,
+        ),
         "q": spec(
             lambda: flat_graph(1),
             lambda g, p: SMDPQLearner(g, p, alpha=0.2, gamma=GAMMA),

@@ -4,8 +4,10 @@ Every curve is one population run (``hrl_torch.experiment.run_experiment``, the 
 of the ``four-agv`` domain, some with changed env options:
 
 - Figure 6.4: Cooperative HRL, selfish multi-agent HRL, single-agent HRL (Table 6.1 timing);
-- Figure 6.5: Cooperative and selfish HRL with 2 s primitive actions (``FIGURE_6_5``);
-- Figure 6.6: flat Q-learning and single-agent HRL, one AGV, buffer capacity 1;
+- Figure 6.5: Cooperative and selfish HRL with 2 s primitive actions (``cooperative-2s``,
+  ``selfish-2s``: the ``FIGURE_6_5`` timing, and the learner's init made for it);
+- Figure 6.6: flat Q-learning and single-agent HRL, one AGV, buffer capacity 1 (``q``,
+  ``single-c1``: the task graph needs the capacity too, not only the env);
 - Figure 6.7: Cooperative HRL and the dispatching rules FCFS, HQF, NSF;
 - Figure 6.8: cooperation at the root against the root and the navigation level.
 
@@ -27,7 +29,6 @@ from pathlib import Path
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from envs.four_agv import FIGURE_6_5
 from hrl_torch import registry
 from hrl_torch.experiment import RunOptions, run_experiment
 from hrl_torch.report import compare_plot
@@ -35,8 +36,8 @@ from hrl_torch.report import compare_plot
 TRAIN = "charts/throughput"
 FIGURES = {
     "fig_6_4": [("cooperative", {}), ("selfish", {}), ("single", {})],
-    "fig_6_5": [("cooperative", {"timing": FIGURE_6_5}), ("selfish", {"timing": FIGURE_6_5})],
-    "fig_6_6": [("q", {}), ("single", {"capacity": 1})],
+    "fig_6_5": [("cooperative-2s", {}), ("selfish-2s", {})],
+    "fig_6_6": [("q", {}), ("single-c1", {})],
     "fig_6_7": [("cooperative", {}), ("fcfs", {}), ("hqf", {}), ("nsf", {})],
     "fig_6_8": [("cooperative", {}), ("cooperative-nav", {})],
 }

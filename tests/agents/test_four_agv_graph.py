@@ -169,6 +169,34 @@ def test_children_are_bound_by_the_status():
     assert root.tolist() == [False] * 6 + [True, False, True]  # DA_3 or Idle
 
 
+def test_registered_graphs_read_their_env_s_capacity():
+    """A graph made for capacity 3 on a capacity-1 env offered DM_i into a full Di and masked
+    the wait there: the one AGV could only repeat failing unloads (Figure 6.6 at 0)."""
+    from agents.four_agv import DOMAIN
+
+    for name, spec in DOMAIN.algos.items():
+        capacity = spec.env_options.get("capacity", 3)
+        if name in ("q", "fcfs", "hqf", "nsf") or spec.multiagent is not None:
+            continue  # flat graphs: the capacity is in the flat state's size (cooperative
+            # graphs: the same four_agv_hierarchy, with the others' codes in their states)
+        g = spec.make_graph()
+        full = obs_of(status=1, drop_off_1=capacity, location=DROP_OFF[0])
+        available = g.context(full).available[0, g.index["DM_1"], :5]
+        assert available.tolist() == [False, False, False, False, True], name  # wait
+        assert flags(g, "DM_1", warehouse_1=1, drop_off_1=capacity) == (False, True), name
+
+
+def test_internal_init_lies_between_the_longest_route_and_endless_moving():
+    from agents.four_agv import GAMMA, LONGEST_ROUTE, internal_init
+    from envs.four_agv import TABLE_6_1
+
+    for timing in (TABLE_6_1, FIGURE_6_5):
+        per_move = GAMMA**timing.action_mean
+        endless = -1 / (1 - per_move)
+        assert endless < internal_init(timing) <= -sum(per_move**k for k in range(40))
+    assert internal_init(TABLE_6_1) == pytest.approx(-LONGEST_ROUTE, abs=0.1)
+
+
 # ---------------------------------------------------------------- rollouts
 def noisy_rollout(rule_cls, steps, epsilon, seeds=(0, 1), e=4, timing=None):
     """Agent rows visited by a dispatcher whose actions are replaced at random w.p. epsilon."""
