@@ -27,12 +27,8 @@ Termination: ``CollectTk`` ends where the robot is empty and can ``Tk`` is empty
 is dumped, or when another robot emptied ``Tk`` first. A can refilled while the robot carried
 its load keeps the subtask going (it collects at ``Tk`` until ``Tk`` is clear). ``NavX`` ends at
 ``X``; ``Root`` never ends (the task is continuing). ``Com`` and ``NotCom`` stand for one
-decision at ``Root`` (Section 6.5.2), so they should end when their child ends; no state
-predicate says "my child ended", so they end on the agent row's *events*: ``dumped`` (this
-robot's put, the normal end of a Collect subtask) or ``last_action == WAIT`` (a Wait step). When
-a Collect subtask ends because another robot took the trash first, ``Com`` / ``NotCom`` stay on
-the stack and choose again without a new communication decision; a Collect subtask that would
-go on after its dump (its can refilled meanwhile) is cut there, with its parent.
+decision at ``Root`` (Section 6.5.2) and have no termination of their own: the COM agent
+(``hrl_torch.multiagent.Communication``) ends them when their ``U_1`` child ends.
 
 State abstractions (the robot's own variables and the cans, Section 3.1: the cans are
 irrelevant while navigating):
@@ -142,24 +138,11 @@ def trash_hierarchy() -> TaskGraph:
     return TaskGraph("Root", [root, *_collection_nodes()], n_actions=N_ACTIONS)
 
 
-def _one_decision(obs: TensorDict) -> torch.Tensor:
-    """Events that end the U_1 child of Com / NotCom: a dump or a Wait step."""
-    return (obs["dumped"] == 1) | (obs["last_action"] == WAIT)
-
-
 def trash_com_hierarchy() -> TaskGraph:
     """The task graph of Figure 6.9: Root -> Com, NotCom -> U_1 (shared subtasks)."""
     root = Subtask("Root", ["Com", "NotCom"], n_states=ROOT_STATES, abstract=_root_state)
     levels = [
-        Subtask(
-            name,
-            U1,
-            n_states=ROOT_STATES,
-            abstract=_root_state,
-            terminated=_one_decision,
-            event_termination=True,
-        )
-        for name in ("Com", "NotCom")
+        Subtask(name, U1, n_states=ROOT_STATES, abstract=_root_state) for name in ("Com", "NotCom")
     ]
     return TaskGraph("Root", [root, *levels, *_collection_nodes()], n_actions=N_ACTIONS)
 

@@ -178,6 +178,9 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         mean_interarrival: the text's "passenger arrival rate": mean steps between arrivals
             over the whole grid (>= 1; ``inf`` for no arrivals).
         max_episode_steps: optional time limit; the task itself is continuing (default none).
+        own_rewards: each taxi's reward is its own share of the team reward (``[B, n]``, their
+            sum is the team's): its own deliveries and illegal actions, and an equal share of
+            the waiting cost.
         device: where the state lives.
     """
 
@@ -212,9 +215,11 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         n_agents: int = 2,
         mean_interarrival: float = MEAN_INTERARRIVAL,
         max_episode_steps: int | None = None,
+        own_rewards: bool = False,
         device: torch.device | str = "cpu",
     ) -> None:
         super().__init__(seeds, envs_per_learner, n_agents, N_ACTIONS, max_episode_steps, device)
+        self.own_rewards = own_rewards
         if not mean_interarrival >= 1.0:
             raise ValueError(f"mean_interarrival must be >= 1 steps, got {mean_interarrival}")
         self.mean_interarrival = float(mean_interarrival)
@@ -258,7 +263,7 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         u = self.rng.uniform(3)  # arrival, its station, its destination: drawn for every row
         waiting = self.station_dest != NO_PASSENGER
         self.station_age = self.station_age + waiting.long()
-        reward = -WAITING_COST * waiting.sum(1)
+        waiting_cost = WAITING_COST * waiting.sum(1)
 
         # the taxis act: pickups (lowest index first at each station), putdowns, moves
         here = self._station_at[self.taxi_loc]  # [B, n], N_STATIONS off the stations
@@ -273,7 +278,11 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         picked, taken = wins.any(2), wins.any(1)
         delivered = putdown & ~empty & (here == self.status)
         illegal = (pickup & ~legal_pickup) | (putdown & ~delivered)
-        reward = reward + DELIVERY_REWARD * delivered.sum(1) - ILLEGAL_COST * illegal.sum(1)
+        own = DELIVERY_REWARD * delivered.float() - ILLEGAL_COST * illegal.float()  # [B, n]
+        if self.own_rewards:  # each taxi's own share; their sum is the team's reward
+            reward = own - (waiting_cost / self.n_agents)[:, None]
+        else:
+            reward = own.sum(1) - waiting_cost
         self.wait_delivered = (self.taxi_wait * delivered).sum(1)
         self.status = torch.where(picked, dest_here, torch.where(delivered, EMPTY, self.status))
         self.taxi_wait = torch.where(picked, age_here, torch.where(delivered, 0, self.taxi_wait))

@@ -55,6 +55,9 @@ class ThroughputEvaluator:
         unit: what the scaled throughput counts (for plot labels and the summary).
         tags: logged names of the greedy throughput and the greedy reward rate.
         train_tags: logged names of the training throughput and the training reward rate.
+        ratio: optional ``(numerator, denominator)`` metrics whose sums' ratio is also
+            reported (e.g. waiting time per delivered passenger), greedy and in training.
+        ratio_tags: logged names of the greedy and the training ratio.
     """
 
     horizon: int = 1_000
@@ -67,6 +70,8 @@ class ThroughputEvaluator:
     unit: str = "reward per unit of time"
     tags: tuple[str, str] = ("charts/eval_throughput", "charts/eval_reward_rate")
     train_tags: tuple[str, str] = ("charts/throughput", "charts/reward_rate")
+    ratio: tuple[Metric, Metric] | None = None
+    ratio_tags: tuple[str, str] = ("charts/eval_ratio", "charts/ratio")
     last_eval: dict[str, list[float]] = field(default_factory=dict, repr=False)
     last_train: dict[str, list[float]] = field(default_factory=dict, repr=False)
     _sums: torch.Tensor | None = field(default=None, repr=False)
@@ -82,7 +87,7 @@ class ThroughputEvaluator:
             env.rng.load_state_dict({"counter": 0})
         agent = trainer.evaluation_agent(env, "eval-explore")
         action = agent.start(env.reset())
-        sums = torch.zeros(3, env.batch_size, device=env.device)  # amount, reward, time
+        sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
         for k in range(self.max_steps if self.horizon_time else self.burn_in + self.horizon):
@@ -94,20 +99,33 @@ class ThroughputEvaluator:
                     break
             else:
                 count = torch.full_like(clock, k >= self.burn_in, dtype=torch.bool)
-            sums += torch.stack([self.metric(td), td["reward"], td["duration"]]) * count
+            sums += self._amounts(td) * count
             action = agent.step(td)
-        per_learner = sums.view(3, -1, env.envs_per_learner).sum(-1).cpu()
+        per_learner = sums.view(self._n_sums, -1, env.envs_per_learner).sum(-1).cpu()
         throughput, rate = _rates(per_learner, self.scale)
         self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
+        if self.ratio is not None:
+            self.last_eval[self.ratio_tags[0]] = _ratio(per_learner).tolist()
         return throughput, rate
+
+    @property
+    def _n_sums(self) -> int:
+        return 3 if self.ratio is None else 5
+
+    def _amounts(self, td: TensorDict) -> torch.Tensor:
+        """``[n_sums, B]``: metric, reward, duration (and the ratio's two metrics)."""
+        amounts = [self.metric(td), td["reward"], td["duration"]]
+        if self.ratio is not None:
+            amounts += [self.ratio[0](td), self.ratio[1](td)]
+        return torch.stack([a.to(td["reward"].dtype) for a in amounts])
 
     # ------------------------------------------------------------------ training
     def observe(self, td: TensorDict, rows: torch.Tensor, n_learners: int) -> None:
         """Add one training step of every row (``rows [B]``: learner of each row)."""
-        real = (~td["is_init"]).float()
-        values = torch.stack([self.metric(td) * real, td["reward"] * real, td["duration"] * real])
+        values = self._amounts(td) * (~td["is_init"]).float()
         if self._sums is None or self._sums.shape[1] != n_learners:
-            self._sums = torch.zeros(3, n_learners, dtype=torch.float64, device=rows.device)
+            shape = (self._n_sums, n_learners)
+            self._sums = torch.zeros(shape, dtype=torch.float64, device=rows.device)
         self._sums.index_add_(1, rows, values.double())
 
     def flush(self) -> dict[str, list[float]]:
@@ -115,9 +133,11 @@ class ThroughputEvaluator:
         if self._sums is None:
             return {}
         throughput, rate = _rates(self._sums.cpu(), self.scale)
-        self._sums.zero_()
         names = self.train_tags
         self.last_train = {names[0]: throughput.tolist(), names[1]: rate.tolist()}
+        if self.ratio is not None:
+            self.last_train[self.ratio_tags[1]] = _ratio(self._sums.cpu()).tolist()
+        self._sums.zero_()
         return dict(self.last_train)
 
     def state_dict(self) -> dict:
@@ -136,6 +156,8 @@ class ThroughputEvaluator:
             self.tags[1]: "final_eval_reward_rate",
             self.train_tags[0]: "final_train_throughput",
             self.train_tags[1]: "final_train_reward_rate",
+            self.ratio_tags[0]: "final_eval_ratio",
+            self.ratio_tags[1]: "final_train_ratio",
         }
         for values in (self.last_eval, self.last_train):
             for tag, per_learner in values.items():
@@ -145,7 +167,8 @@ class ThroughputEvaluator:
     @property
     def metrics(self) -> list[str]:
         """Every tag this evaluator logs (for plots)."""
-        return [*self.tags, *self.train_tags]
+        ratio = list(self.ratio_tags) if self.ratio is not None else []
+        return [*self.tags, *self.train_tags, *ratio]
 
 
 def _rates(sums: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -155,6 +178,12 @@ def _rates(sums: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor
     throughput = torch.where(time > 0, scale * sums[0] / safe, torch.nan)
     rate = torch.where(time > 0, sums[1] / safe, torch.nan)
     return throughput.float(), rate.float()
+
+
+def _ratio(sums: torch.Tensor) -> torch.Tensor:
+    """``numerator / denominator`` of the ratio sums ``sums[3:5]`` (NaN without any)."""
+    den = sums[4]
+    return torch.where(den > 0, sums[3] / den.clamp_min(1e-12), torch.nan).float()
 
 
 # ---------------------------------------------------------------------- learned policies

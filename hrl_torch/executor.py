@@ -164,6 +164,8 @@ class HierarchicalExecutor:
         #: ``interrupt(popped [B, D], ended_own [B, D]) -> [B, D]``: more levels to cut
         self.interrupt = None
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
+        #: levels ``[B, D]`` whose node was invoked by the last ``act``
+        self.invoked = torch.zeros_like(self.stack.inst, dtype=torch.bool)
 
     @property
     def memory(self) -> torch.Tensor:
@@ -287,6 +289,7 @@ class HierarchicalExecutor:
             started = started.scatter_add(1, node, invoked.float()) > 0
             f["memory"] = torch.where(started[..., None], g.remember_all(ctx.obs), f["memory"])
         self.stats.count_calls(self.learner, node, invoked)
+        self.invoked = invoked
 
     # ------------------------------------------------------------------ observing
     def observe(

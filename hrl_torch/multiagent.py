@@ -58,6 +58,30 @@ Scheme = Literal["continue", "any", "all"]
 
 
 @dataclass(frozen=True)
+class Communication:
+    """A communication level of COM-Cooperative HRL (Section 6.5, Figure 6.9).
+
+    Below a cooperation level's parent sit two siblings with the same children: ``com``
+    (Communicate: a cooperative subtask of a ``Cooperation`` level, so its completions are
+    joint, indexed by the other agents' ``U_l`` tasks it asks for) and ``not_com``
+    (Not-Communicate: plain completions, a selfish choice). Their parent chooses by comparing
+    ``Q(parent, s, com) - cost`` with ``Q(parent, s, not_com)``: the text's "``Q(Parent(Com),
+    s, Com) + ComCost``" with the cost written as a positive number. The cost biases that
+    choice only; it is not a reward (the text's figures report throughput and waiting time
+    without it), so the learned values are those of the behaviour.
+
+    Attributes:
+        com: the Communicate subtask.
+        not_com: the Not-Communicate subtask.
+        cost: ComCost, ``>= 0``, paid once per communication (each push of ``com``).
+    """
+
+    com: str = "Com"
+    not_com: str = "NotCom"
+    cost: float = 0.0
+
+
+@dataclass(frozen=True)
 class Cooperation:
     """Cooperative subtasks, one tuple of names per cooperation level (top level first).
 
@@ -203,6 +227,7 @@ class MultiAgentAgent(HierarchicalAgent):
         cooperation: the cooperative subtasks (``None``: selfish agents).
         scheme: termination scheme at the first cooperation level.
         shared_tables: the agents of a seed share one table set.
+        communication: COM-Cooperative HRL's communication level (``None``: none).
         first_table: act with the table sets from this one on (one seed of a trained
             population: ``seed * n``); ``None``: the learner has exactly the sets needed.
     """
@@ -223,6 +248,7 @@ class MultiAgentAgent(HierarchicalAgent):
         scheme: Scheme = "continue",
         shared_tables: bool = False,
         first_table: int | None = None,
+        communication: Communication | None = None,
     ) -> None:
         if scheme not in ("continue", "any", "all"):
             raise ValueError(f"scheme must be 'continue', 'any' or 'all', got {scheme!r}")
@@ -266,29 +292,65 @@ class MultiAgentAgent(HierarchicalAgent):
             self.executor.interrupt = self._interrupt
         if scheme == "all" and cooperation.wait is None:
             raise ValueError("scheme 'all' needs Cooperation.wait (the waiting child)")
+        self.communication = communication
+        if communication is not None:
+            if scheme != "continue":
+                raise ValueError("communication runs with the 'continue' scheme only")
+            self._com = _CommunicationLevel(self, communication)
+            self.executor.interrupt = self._end_communication
         self.set_policy(self.policy)
 
     def set_policy(self, policy) -> None:
         """Act with ``policy`` (under tau_all wrapped so that finished agents wait)."""
+        if self.communication is not None:
+            if not hasattr(policy, "choice_cost"):
+                raise ValueError("communication needs a value-based policy (ValuePolicy)")
+            policy.choice_cost = self._com.choice_cost
         self.policy = _WaitPolicy(self, policy) if self.scheme == "all" else policy
 
     # ------------------------------------------------------------------ env <-> agent rows
     def start(self, obs: TensorDict) -> torch.Tensor:
         """Every agent starts at the root; the first actions ``[B, n]``."""
         self._pending.zero_()
-        return super().start(self._rows(obs)).view(-1, self.n_agents)
+        action = super().start(self._rows(obs))
+        if self.communication is not None:
+            self._com.record()
+        return action.view(-1, self.n_agents)
 
     def decide(self, td: TensorDict) -> tuple[torch.Tensor, TensorDict | None]:
         """Steps 1-4 on an env step ``[B]``: ``(actions [B, n], transitions of agent rows)``."""
         action, batch = super().decide(self._rows(td))
+        if self.communication is not None:
+            self._com.record()
         return action.view(-1, self.n_agents), batch
 
     def _rows(self, td: TensorDict) -> TensorDict:
         """The step as agent rows, with the others' ``U_l`` codes of every cooperation level."""
         rows = agent_rows(td)
+        self._others_tasks = []
         for level in self.levels:
             rows.set(level.key, self._others_code(level))
         return rows
+
+    @property
+    def messages(self) -> TensorDict:
+        """This step's messages ``[B, n]`` (communication only).
+
+        ``asked``: the agent communicated (its Ask to every other agent); ``told`` ``[B, n,
+        n - 1]``: the other agents' Tell replies, their ``U_l`` tasks (-1 where nothing was
+        asked).
+        """
+        return self._com.messages
+
+    @property
+    def communications(self) -> torch.Tensor:
+        """Communications of every agent row since the agent was made ``[B * n]``."""
+        return self._com.count
+
+    @property
+    def communication_cost(self) -> torch.Tensor:
+        """ComCost paid by every agent row since the agent was made ``[B * n]``."""
+        return self._com.count * self.communication.cost
 
     # ------------------------------------------------------------------ cooperation
     def own_codes(self, level: _Level) -> torch.Tensor:
@@ -304,8 +366,24 @@ class MultiAgentAgent(HierarchicalAgent):
             return torch.zeros_like(self.executor.learner)
         own = self.own_codes(level).view(-1, n)  # [B, n]
         others = own[:, self._others.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
+        self._others_tasks.append(others)
         weights = level.radix ** torch.arange(n - 1, device=own.device)
         return (others * weights).sum(-1).view(-1)
+
+    def _end_communication(self, popped: torch.Tensor, ended_own: torch.Tensor) -> torch.Tensor:
+        """A communication subtask lasts one ``U_l`` decision: cut it when its child ended.
+
+        Its child's completion still learns (the child ended on its own; the target reads the
+        communication subtask's value at ``s'``, as if it went on), while the parent's
+        completion of ``Com`` / ``NotCom`` does not (cut, as any aborted child): the parent
+        compares ``V(Com, s)`` with ``V(NotCom, s)``, the values of going on communicating or
+        not. Ending them by their own termination instead made the ``U_1`` choice myopic
+        (a completion that ends with the subtask sees no reward after its child).
+        """
+        d = self._com.depth
+        cut = torch.zeros_like(popped)
+        cut[:, d] = popped[:, d + 1] & ended_own[:, : d + 2].any(1)
+        return cut
 
     # ------------------------------------------------------------------ schemes
     def _interrupt(self, popped: torch.Tensor, ended_own: torch.Tensor) -> torch.Tensor:
@@ -359,6 +437,63 @@ class _WaitPolicy:
         return choice
 
 
+class _CommunicationLevel:
+    """Validates a ``Communication``, builds its choice cost and records its messages."""
+
+    def __init__(self, agent: MultiAgentAgent, communication: Communication) -> None:
+        g, com, not_com = agent.graph, communication.com, communication.not_com
+        for name in (com, not_com):
+            if name not in g.index or g.node(name).is_primitive:
+                raise GraphError(f"communication: {name!r} is not a subtask of the graph")
+        cost = float(communication.cost)
+        if not (cost >= 0.0 and cost < float("inf")):
+            raise ValueError(f"communication cost must be finite and >= 0, got {cost}")
+        level = next(
+            (lv for k, lv in enumerate(agent.levels) if com in agent.cooperation.levels[k]), None
+        )
+        if level is None:
+            raise GraphError(f"communication: {com!r} is not a cooperative subtask")
+        if any(not_com in names for names in agent.cooperation.levels):
+            raise GraphError(f"communication: {not_com!r} must not be cooperative")
+        if set(g.node(com).children_names) != set(g.node(not_com).children_names):
+            raise GraphError(f"communication: {com!r} and {not_com!r} need the same children")
+        parents = [k for k, node in enumerate(g.nodes) if com in node.children_names]
+        if parents != [k for k, node in enumerate(g.nodes) if not_com in node.children_names]:
+            raise GraphError(f"communication: {com!r} and {not_com!r} need the same parents")
+        self.agent, self.level, self.depth = agent, level, level.depth
+        self.com = g.index[com]
+        choice_cost = torch.zeros(g.n_nodes, g.node_children.shape[1])
+        for k in parents:
+            choice_cost[k, g.nodes[k].children_names.index(com)] = cost
+        self.choice_cost = choice_cost.to(g.node_children.device)
+        b, n = agent.executor.stack.batch_size[0], agent.n_agents
+        dev = g.node_children.device
+        self.count = torch.zeros(b, dtype=torch.long, device=dev)
+        self.messages = TensorDict(
+            {
+                "asked": torch.zeros(b // n, n, dtype=torch.bool, device=dev),
+                "told": torch.full((b // n, n, max(n - 1, 0)), -1, dtype=torch.long, device=dev),
+            },
+            batch_size=[b // n, n],
+        )
+
+    def record(self) -> None:
+        """After a step's pushes: the agents that invoked ``com`` asked (once per invocation)."""
+        executor, n = self.agent.executor, self.agent.n_agents
+        inst = executor.stack.inst[:, self.depth]
+        node = torch.take(self.agent.graph.inst_node, inst.clamp_min(0))
+        asked = executor.invoked[:, self.depth] & (node == self.com)
+        self.count += asked
+        k = self.agent.levels.index(self.level)
+        others = self.agent._others_tasks[k] if n > 1 else self.messages["told"]
+        members = torch.where(others >= len(self.level.members), -1, others)  # no task: -1
+        asked = asked.view(-1, n)
+        self.messages = TensorDict(
+            {"asked": asked, "told": torch.where(asked[..., None], members, -1)},
+            batch_size=asked.shape,
+        )
+
+
 def _child_slot(graph: TaskGraph, node: torch.Tensor, name: str) -> torch.Tensor:
     """The slot of child ``name`` among the children of ``node [B]`` (-1 where it is none)."""
     target = graph.index[name]
@@ -380,11 +515,13 @@ class MultiAgentConfig:
         cooperation: the cooperative subtasks (``None``: selfish agents).
         scheme: termination scheme at the first cooperation level.
         shared_tables: the agents of a seed share one table set.
+        communication: COM-Cooperative HRL's communication level (``None``: none).
     """
 
     cooperation: Cooperation | None = None
     scheme: Scheme = "continue"
     shared_tables: bool = False
+    communication: Communication | None = None
 
     def table_sets(self, n_seeds: int, n_agents: int) -> int:
         """Table sets a learner needs for ``n_seeds`` seeds of ``n_agents`` agents."""

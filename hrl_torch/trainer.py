@@ -306,6 +306,7 @@ class Trainer:
             cooperation=config.cooperation,
             scheme=config.scheme,
             shared_tables=config.shared_tables,
+            communication=config.communication,
             **options,
         )
 
@@ -335,8 +336,16 @@ class Trainer:
         if self.logger:
             tags = getattr(self.evaluator, "tags", ("charts/eval_return", "charts/eval_success"))
             scalars = {tags[0]: values, tags[1]: self._last_success}
+            scalars.update(getattr(self.evaluator, "last_eval", {}))  # e.g. its ratio
             scalars["perf/eval_seconds"] = [self.eval_seconds] * self.P
             self.logger.log(self.step, scalars)
+
+    def _per_seed(self, counts: torch.Tensor) -> torch.Tensor:
+        """Counters per table set ``[sets, ...]`` summed per seed ``[P, ...]``.
+
+        A multi-agent learner has a table set per seed and agent.
+        """
+        return counts.view(self.P, -1, *counts.shape[1:]).sum(1)
 
     def _log_training(self) -> None:
         extra = self.evaluator.flush() if self.evaluator is not None else {}
@@ -349,14 +358,23 @@ class Trainer:
             self.step * self.P / max(self.train_seconds, 1e-9)
         ] * self.P
         stats = self.executor.stats
+        calls, ends = self._per_seed(stats.calls), self._per_seed(stats.ends)
+        durations, successes = self._per_seed(stats.durations), self._per_seed(stats.successes)
+        td_abs, td_count = (
+            self._per_seed(self.learner.td_abs),
+            self._per_seed(self.learner.td_count),
+        )
         for k in g.subtasks():
             name = g.names[k]
-            calls, ends = stats.calls[:, k], stats.ends[:, k]
-            scalars[f"hrl/{name}/calls"] = calls.tolist()
-            scalars[f"hrl/{name}/mean_duration"] = _ratio(stats.durations[:, k], ends)
-            scalars[f"hrl/{name}/success"] = _ratio(stats.successes[:, k], ends)
-            scalars[f"losses/{name}/td_error"] = _ratio(
-                self.learner.td_abs[:, k], self.learner.td_count[:, k]
+            scalars[f"hrl/{name}/calls"] = calls[:, k].tolist()
+            scalars[f"hrl/{name}/mean_duration"] = _ratio(durations[:, k], ends[:, k])
+            scalars[f"hrl/{name}/success"] = _ratio(successes[:, k], ends[:, k])
+            scalars[f"losses/{name}/td_error"] = _ratio(td_abs[:, k], td_count[:, k])
+        com = self.multiagent.communication if self.multiagent else None
+        if com is not None:  # COM-Cooperative HRL: the share of U_l choices made communicating
+            asked = calls[:, g.index[com.com]]
+            scalars["charts/communication_rate"] = _ratio(
+                asked, asked + calls[:, g.index[com.not_com]]
             )
         stats.reset()
         self.learner.td_abs.zero_()

@@ -179,12 +179,18 @@ class ValuePolicy:
         learner: provides ``action_values`` (and optionally ``instance_action_values``).
         exploration: greedy, epsilon-greedy or Boltzmann.
         rng: random numbers for the rows (one stream per row).
+
+    Attributes:
+        choice_cost: optional ``[n_nodes, max_children]`` cost of choosing a child, subtracted
+            from its action value before the choice (not learned; e.g. the communication cost
+            of COM-Cooperative HRL, ``hrl_torch.multiagent.Communication``).
     """
 
     def __init__(self, learner: Learner, exploration: Exploration, rng: BatchRNG) -> None:
         self.learner = learner
         self.exploration = exploration
         self.rng = rng
+        self.choice_cost: torch.Tensor | None = None
         self.width = uniforms_needed(learner.graph.max_children)
         self.all_at_once = hasattr(learner, "instance_action_values")
         self._u = None
@@ -202,6 +208,8 @@ class ValuePolicy:
         """The choices for instances ``inst [B]`` at stack level ``push``."""
         if not self.all_at_once:
             q = self.learner.action_values(inst, ctx)
+            if self.choice_cost is not None:
+                q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
             return Choice(*self.exploration.select(q, available, self._u[:, push], step))
         if self._choices is None:
             self._choices = self._choose_all(ctx, step)
@@ -214,6 +222,8 @@ class ValuePolicy:
         """``(child, greedy)`` ``[B * Ic]`` of every choosing instance (its level's uniforms)."""
         plan = self.learner.plan
         q = self.learner.instance_action_values(ctx)
+        if self.choice_cost is not None:
+            q = q - self.choice_cost.index_select(0, plan.chooser_node)
         b, ic, a = q.shape
         available = ctx.available.index_select(1, plan.chooser_node).view(-1, a)
         u = self._u.index_select(1, plan.chooser_depth).view(-1, self.width)

@@ -230,3 +230,23 @@ def test_bad_arguments_are_clear_errors():
     env.reset()
     with pytest.raises(ValueError, match=r"action 7 of agent 0 outside the action space"):
         env.step(torch.tensor([[7, 0], [0, 0]]))
+
+
+def test_pettingzoo_and_torchrl_forms_pass_their_checkers():
+    import warnings
+
+    from pettingzoo.test import api_test, parallel_api_test
+    from torchrl.envs.utils import check_env_specs
+
+    from hrl_torch.pettingzoo_env import MultiAgentAECEnv, MultiAgentParallelEnv
+    from hrl_torch.torchrl_multiagent import MultiAgentTorchRLEnv
+
+    def make(seeds, envs):
+        return TwoTaxiEnv(seeds, envs, mean_interarrival=3.0, max_episode_steps=60)
+
+    with warnings.catch_warnings():  # Dict observations are the design here
+        warnings.filterwarnings("ignore", "Observation is not a NumPy array")
+        warnings.filterwarnings("ignore", "Observation space for each agent probably should")
+        api_test(MultiAgentAECEnv(make, seed=3), num_cycles=150)
+        parallel_api_test(MultiAgentParallelEnv(make, seed=3), num_cycles=150)
+    check_env_specs(MultiAgentTorchRLEnv(make([0, 1], 3)))
