@@ -253,9 +253,14 @@ GAMMA = 0.95  # per step
 INIT = 0.0  # optimistic outside: an unseen Get looks better than waiting
 #: pessimistic internal completions inside Navigate (the longest route's discounted cost)
 INIT_INTERNAL = -10.0
-#: Wait's initial completion at U_1 parents. Waiting repeats without changing the state, so an
-#: optimistic 0 made a greedy taxi wait forever at root states it had not met in training
-#: (frozen tables): greedy throughput 368 and 407 against 445 in training (2 seeds, 200k steps)
+#: Initial completions at the U_1 parents (Root, Com, NotCom): optimistic for the tasks that
+#: serve passengers, pessimistic for Wait. With 0 for all, a greedy taxi waited forever at root
+#: states it had not met in training (frozen tables; the root's state holds every station and,
+#: for Cooperative HRL, the other taxi's task): Wait costs one step of waiting passengers, a Get
+#: or Put many, and the deliveries they lead to live in the completions still at 0. Greedy
+#: throughput was 368 and 407 (selfish) and 276 and 303 (cooperative) against 440-445 in
+#: training (2 seeds, 200k steps).
+SERVE_INIT = 10.0
 WAIT_INIT = -10.0
 #: Cooperative HRL: Root is the cooperative subtask; a taxi without a U_1 task counts as waiting
 COOPERATION = Cooperation((("Root",),), idle="Wait")
@@ -284,16 +289,18 @@ def make_env(
 
 
 def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
-    """MAXQ-Q with optimistic completions but a pessimistic one for Wait (``WAIT_INIT``)."""
+    """MAXQ-Q; the U_1 parents' completions start at ``SERVE_INIT`` / ``WAIT_INIT``."""
     learner = MaxQLearner(
         graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL
     )
     with torch.no_grad():
         for parent in ("Root", "Com", "NotCom"):
-            if parent in graph.index and "Wait" in graph.node(parent).children_names:
-                slot = graph.node(parent).children_names.index("Wait")
-                for table in learner.heads[parent].views().values():
-                    table[..., slot] = WAIT_INIT
+            if parent not in graph.index or "Wait" not in graph.node(parent).children_names:
+                continue
+            wait = graph.node(parent).children_names.index("Wait")
+            for table in learner.heads[parent].views().values():
+                table.fill_(SERVE_INIT)
+                table[..., wait] = WAIT_INIT
     return learner
 
 

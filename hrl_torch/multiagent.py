@@ -68,12 +68,14 @@ class Communication:
     ``Q(parent, s, com) - cost`` with ``Q(parent, s, not_com)``: the text's "``Q(Parent(Com),
     s, Com) + ComCost``" with the cost written as a positive number. The cost biases that
     choice only; it is not a reward (the text's figures report throughput and waiting time
-    without it), so the learned values are those of the behaviour.
+    without it), so the learned values are those of the behaviour. ``com`` and ``not_com``
+    need no termination of their own: the agent cuts them when their ``U_l`` child ends, so
+    every ``U_l`` decision is preceded by a communication decision (tau_continue only).
 
     Attributes:
         com: the Communicate subtask.
         not_com: the Not-Communicate subtask.
-        cost: ComCost, ``>= 0``, paid once per communication (each push of ``com``).
+        cost: ComCost, ``>= 0``, paid once per communication (each invocation of ``com``).
     """
 
     com: str = "Com"

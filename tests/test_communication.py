@@ -151,3 +151,27 @@ def test_a_bad_communication_level_is_a_clear_error():
             cooperation=Cooperation((("Com", "NotCom"),)),
             communication=Communication(),
         )
+
+
+def _two_taxi_trainer(seeds):
+    import agents  # noqa: F401
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    opts = RunOptions(seeds=seeds, envs_per_learner=4, progress=False, tensorboard=False)
+    return build_trainer(registry.get("two-taxi"), "com-1", opts)
+
+
+def test_a_com_population_equals_separate_runs():
+    together = _two_taxi_trainer([3, 8])
+    for _ in range(120):
+        together.train_step()
+    for p, seed in enumerate([3, 8]):
+        alone = _two_taxi_trainer([seed])
+        for _ in range(120):
+            alone.train_step()
+        for bank in ("C", "C_int", "V"):
+            mine = getattr(alone.learner, bank).data
+            assert torch.equal(mine, getattr(together.learner, bank).data[2 * p : 2 * p + 2])
+    com = together.graph.index["Com"]
+    assert together.executor.stats.calls[:, com].sum() > 0  # it communicated: not vacuous
