@@ -74,3 +74,54 @@ TABLE_HEADER = (
     "threshold at the end | mean final return | train s (all seeds) | env steps/s |\n"
     "|---|---|---|---|---|---|---|"
 )
+
+
+def mean_sd(values: Sequence[float], digits: int = 1) -> str:
+    """``mean ± sd`` of ``values`` (NaN values left out; ``n/a`` when none is left)."""
+    values = [v for v in values if v == v]
+    if not values:
+        return "n/a"
+    sd = statistics.stdev(values) if len(values) > 1 else 0.0
+    return f"{statistics.mean(values):.{digits}f} ± {sd:.{digits}f}"
+
+
+def run_variant(domain_name: str, algo: str, env_options: dict, opts, cache: dict) -> Path:
+    """One population run of ``algo`` with its env options updated by ``env_options``.
+
+    Runs with the same algorithm and options are made once per ``cache`` (a figure script
+    shares them between figures). ``opts`` is a ``hrl_torch.experiment.RunOptions``.
+    """
+    from dataclasses import replace
+
+    from hrl_torch import registry
+    from hrl_torch.experiment import run_experiment
+
+    key = (domain_name, algo, tuple(sorted((k, repr(v)) for k, v in env_options.items())))
+    if key not in cache:
+        domain = registry.get(domain_name)
+        spec = domain.algos[algo]
+        spec = replace(spec, env_options={**spec.env_options, **env_options})
+        domain = replace(domain, algos={**domain.algos, algo: spec})
+        cache[key] = run_experiment(domain, algo, opts)[0]
+    return cache[key]
+
+
+def figure_cli(description: str, figures: Sequence[str], figure) -> None:
+    """The command line of a figure script: ``--seeds --steps --out --only``.
+
+    Calls ``figure(name, args, cache)`` for every chosen figure and prints what it returns.
+    """
+    import argparse
+
+    import torch
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=200_000)
+    parser.add_argument("--out", default="runs")
+    parser.add_argument("--only", nargs="*", default=list(figures), choices=list(figures))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    cache: dict = {}
+    for name in args.only:
+        print(figure(name, args, cache), flush=True)

@@ -20,19 +20,13 @@ training values, mean ± sd over seeds).
 
 from __future__ import annotations
 
-import argparse
 import json
-import statistics
-from dataclasses import replace
 from pathlib import Path
-
-import torch
 
 import agents  # noqa: F401  (registers the domains)
 from envs.two_taxi import MEAN_INTERARRIVAL
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, run_experiment
-from hrl_torch.report import compare_plot
+from hrl_torch.experiment import RunOptions
+from hrl_torch.report import compare_plot, figure_cli, mean_sd, run_variant
 from hrl_torch.runlog import read_curves
 
 THROUGHPUT, WAIT, COM_RATE = "charts/throughput", "charts/wait", "charts/communication_rate"
@@ -57,31 +51,13 @@ FIGURES = {
 
 def run(algo: str, options: dict, args, out: Path, cache: dict) -> Path:
     """One population run (runs with the same algorithm and options are shared)."""
-    key = (algo, tuple(sorted(options.items())))
-    if key in cache:
-        return cache[key]
-    domain = registry.get("two-taxi")
-    spec = domain.algos[algo]
-    spec = replace(spec, env_options={**spec.env_options, **options})
-    domain = replace(domain, algos={**domain.algos, algo: spec})
     opts = RunOptions(seeds=list(range(args.seeds)), steps=args.steps, out=str(out), progress=False)
-    run_dir, _ = run_experiment(domain, algo, opts)
-    cache[key] = run_dir
-    return run_dir
+    return run_variant("two-taxi", algo, options, opts, cache)
 
 
 def label(algo: str, options: dict) -> str:
     """Curve label: the algorithm and its arrival rate (mean steps between arrivals)."""
     return f"{algo} rate {options.get('mean_interarrival', MEAN_INTERARRIVAL):g}"
-
-
-def mean_sd(values: list[float], digits: int = 1) -> str:
-    """``mean ± sd`` (NaN values left out)."""
-    values = [v for v in values if v == v]
-    if not values:
-        return "n/a"
-    sd = statistics.stdev(values) if len(values) > 1 else 0.0
-    return f"{statistics.mean(values):.{digits}f} ± {sd:.{digits}f}"
 
 
 def last_values(run_dir: Path, metric: str) -> list[float]:
@@ -127,16 +103,7 @@ def figure(name: str, args, cache: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=200_000)
-    parser.add_argument("--out", default="runs")
-    parser.add_argument("--only", nargs="*", default=list(FIGURES))
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    cache: dict = {}
-    for name in args.only:
-        print(figure(name, args, cache), flush=True)
+    figure_cli(__doc__.split("\n")[0], list(FIGURES), figure)
 
 
 if __name__ == "__main__":

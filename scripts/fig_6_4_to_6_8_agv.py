@@ -20,18 +20,12 @@ comparison plot of the training throughput (assemblies per 1,000 s, mean over se
 
 from __future__ import annotations
 
-import argparse
 import json
-import statistics
-from dataclasses import replace
 from pathlib import Path
 
-import torch
-
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, run_experiment
-from hrl_torch.report import compare_plot
+from hrl_torch.experiment import RunOptions
+from hrl_torch.report import compare_plot, figure_cli, mean_sd, run_variant
 
 TRAIN = "charts/throughput"
 FIGURES = {
@@ -45,38 +39,14 @@ FIGURES = {
 
 def run(algo: str, options: dict, args, out: Path, cache: dict) -> Path:
     """One population run (runs with the same algorithm and options are shared)."""
-    key = (algo, tuple(sorted((k, repr(v)) for k, v in options.items())))
-    if key in cache:
-        return cache[key]
-    domain = registry.get("four-agv")
-    spec = domain.algos[algo]
-    spec = replace(spec, env_options={**spec.env_options, **options})
-    domain = replace(domain, algos={**domain.algos, algo: spec})
-    opts = RunOptions(
-        seeds=list(range(args.seeds)),
-        steps=args.steps,
-        out=str(out),
-        progress=False,
-        tensorboard=True,
-    )
-    run_dir, _ = run_experiment(domain, algo, opts)
-    cache[key] = run_dir
-    return run_dir
+    opts = RunOptions(seeds=list(range(args.seeds)), steps=args.steps, out=str(out), progress=False)
+    return run_variant("four-agv", algo, options, opts, cache)
 
 
 def label(algo: str, options: dict) -> str:
     """Curve label: the algorithm and its changed env options."""
     extra = [f"capacity {v}" if k == "capacity" else "2 s actions" for k, v in options.items()]
     return " ".join([algo, *extra])
-
-
-def mean_sd(values: list[float]) -> str:
-    """``mean ± sd`` (NaN values left out)."""
-    values = [v for v in values if v == v]
-    if not values:
-        return "n/a"
-    sd = statistics.stdev(values) if len(values) > 1 else 0.0
-    return f"{statistics.mean(values):.1f} ± {sd:.1f}"
 
 
 def figure(name: str, args, cache: dict) -> str:
@@ -107,16 +77,7 @@ def figure(name: str, args, cache: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=200_000)
-    parser.add_argument("--out", default="runs")
-    parser.add_argument("--only", nargs="*", default=list(FIGURES))
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    cache: dict = {}
-    for name in args.only:
-        print(figure(name, args, cache), flush=True)
+    figure_cli(__doc__.split("\n")[0], list(FIGURES), figure)
 
 
 if __name__ == "__main__":

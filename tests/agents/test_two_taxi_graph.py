@@ -143,3 +143,37 @@ def test_random_rollouts_of_the_communication_graph():
         ("Put", "Putdown"),
     ]:
         assert pair in ended, pair
+
+
+def test_waiting_time_is_the_waits_over_the_deliveries_and_logged_per_seed():
+    import agents  # noqa: F401
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    evaluator = registry.get("two-taxi").make_evaluator(None)
+    step = TensorDict(
+        {
+            "n_delivered": torch.tensor([2, 0, 2]),
+            "wait_delivered": torch.tensor([4, 0, 10]),
+            "reward": torch.tensor([20.0, -1.0, 40.0]),
+            "duration": torch.ones(3),
+            "is_init": torch.tensor([False, False, True]),
+        },
+        batch_size=[3],
+    )
+    rows = torch.tensor([0, 1, 1])  # learner of each row
+    evaluator.observe(step, rows, 2)
+    evaluator.observe(step, rows, 2)
+    logged = evaluator.flush()
+    # learner 0: 4 deliveries in 2 steps that waited 8 steps in all; learner 1: row 2 is a
+    # reset (ignored)
+    assert logged["charts/wait"][0] == 2.0
+    assert logged["charts/wait"][1] != logged["charts/wait"][1]  # no delivery: NaN
+    assert logged["charts/throughput"] == [10000.0, 0.0]
+    # the trainer's statistics of a multi-agent learner are summed per seed (2 taxis each)
+    opts = RunOptions(seeds=[0, 1], envs_per_learner=2, progress=False, tensorboard=False)
+    trainer = build_trainer(registry.get("two-taxi"), "selfish", opts)
+    for _ in range(40):
+        trainer.train_step()
+    calls = trainer.executor.stats.calls  # [4 table sets, nodes]
+    assert torch.equal(trainer._per_seed(calls), calls[[0, 2]] + calls[[1, 3]])
