@@ -12,10 +12,11 @@ station statuses (``stations``, ``waiting_R`` ... ``waiting_B``). Task graph of 
 
 ``Get_s`` calls ``Navigate(s)`` for its own station and offers ``Pickup`` only there; ``Put``'s
 mask allows only the ``Navigate(t)`` of the carried passenger's destination and ``Putdown``
-only there (without these masks a greedy taxi met illegal pickups at unseen states and
-repeated them: the tables are frozen during evaluation) (``agents.taxi.Navigate``, shared by Get
-and Put as in Dietterich's taxi). ``Root`` is the cooperative subtask and
-``U_1 = {GetB, GetG, GetR, GetY, Wait, Put}``. COM version (the communication level)::
+only there. (Without these masks a greedy taxi met illegal pickups at unseen states and
+repeated them: the tables are frozen during evaluation.) ``Navigate(t)`` is Dietterich's,
+shared by Get and Put, with an internal cost per move (``StepCostNavigate``). ``Root`` is the
+cooperative subtask and ``U_1 = {GetB, GetG, GetR, GetY, Wait, Put}``. COM version (the
+communication level)::
 
     Root ─┬─ Com ────┬─ GetB, GetG, GetR, GetY, Wait, Put   (the same subtasks under both)
           └─ NotCom ─┘
@@ -250,7 +251,7 @@ def table_sizes(n_agents: int = 2) -> dict[str, int]:
 
 # ---------------------------------------------------------------------- experiments (Ch. 6)
 GAMMA = 0.95  # per step
-INIT = 0.0  # optimistic outside: an unseen Get looks better than waiting
+INIT = 0.0  # external completions below the U_1 parents
 #: pessimistic internal completions inside Navigate (the longest route's discounted cost)
 INIT_INTERNAL = -10.0
 #: Initial completions at the U_1 parents (Root, Com, NotCom): optimistic for the tasks that
@@ -361,6 +362,12 @@ def _algos() -> dict[str, AlgoSpec]:
             com_graph,
             f"COM-Cooperative HRL, ComCost {cost}: Root chooses Com (asks) or NotCom",
             MultiAgentConfig(COM_COOPERATION, communication=Communication(cost=float(cost))),
+        )
+    for loss in (50, 100):  # beyond the text: replies lost with probability loss %
+        algos[f"com-0-loss{loss}"] = spec(
+            com_graph,
+            f"COM-Cooperative HRL, ComCost 0, {loss}% of the replies lost",
+            MultiAgentConfig(COM_COOPERATION, communication=Communication(loss=loss / 100)),
         )
     return algos
 

@@ -72,15 +72,23 @@ class Communication:
     need no termination of their own: the agent cuts them when their ``U_l`` child ends, so
     every ``U_l`` decision is preceded by a communication decision (tau_continue only).
 
+    Beyond the text (its future work): replies can be lost or late. A lost reply reads as
+    "no task" (``Cooperation.idle`` when given), each with probability ``loss`` per step and
+    other agent; a late one tells the other agent's task of ``delay`` steps ago.
+
     Attributes:
         com: the Communicate subtask.
         not_com: the Not-Communicate subtask.
         cost: ComCost, ``>= 0``, paid once per communication (each invocation of ``com``).
+        loss: probability in ``[0, 1]`` that one reply is lost.
+        delay: steps ``>= 0`` by which a reply is late.
     """
 
     com: str = "Com"
     not_com: str = "NotCom"
     cost: float = 0.0
+    loss: float = 0.0
+    delay: int = 0
 
 
 @dataclass(frozen=True)
@@ -314,6 +322,8 @@ class MultiAgentAgent(HierarchicalAgent):
     def start(self, obs: TensorDict) -> torch.Tensor:
         """Every agent starts at the root; the first actions ``[B, n]``."""
         self._pending.zero_()
+        if self.communication is not None:
+            self._com._history = None
         action = super().start(self._rows(obs))
         if self.communication is not None:
             self._com.record()
@@ -367,7 +377,11 @@ class MultiAgentAgent(HierarchicalAgent):
         if n == 1:
             return torch.zeros_like(self.executor.learner)
         own = self.own_codes(level).view(-1, n)  # [B, n]
+        if self.communication is not None and level is self._com.level:
+            own = self._com.late(own)
         others = own[:, self._others.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
+        if self.communication is not None and level is self._com.level:
+            others = self._com.lose(others, self.policy.rng)
         self._others_tasks.append(others)
         weights = level.radix ** torch.arange(n - 1, device=own.device)
         return (others * weights).sum(-1).view(-1)
@@ -450,6 +464,12 @@ class _CommunicationLevel:
         cost = float(communication.cost)
         if not (cost >= 0.0 and cost < float("inf")):
             raise ValueError(f"communication cost must be finite and >= 0, got {cost}")
+        if not 0.0 <= communication.loss <= 1.0:
+            raise ValueError(f"communication loss must be in [0, 1], got {communication.loss}")
+        if int(communication.delay) != communication.delay or communication.delay < 0:
+            raise ValueError(f"communication delay must be an int >= 0, got {communication.delay}")
+        self.loss, self.delay = float(communication.loss), int(communication.delay)
+        self._history: torch.Tensor | None = None  # [delay + 1, B, n] own tasks, newest first
         level = next(
             (lv for k, lv in enumerate(agent.levels) if com in agent.cooperation.levels[k]), None
         )
@@ -478,6 +498,22 @@ class _CommunicationLevel:
             },
             batch_size=[b // n, n],
         )
+
+    def late(self, own: torch.Tensor) -> torch.Tensor:
+        """Every agent's task as the replies tell it: ``delay`` steps old (``own [B, n]``)."""
+        if not self.delay:
+            return own
+        if self._history is None:  # the start: no older replies than the current tasks
+            self._history = own.expand(self.delay + 1, *own.shape).clone()
+        self._history = torch.cat([own[None], self._history[:-1]])
+        return self._history[-1]
+
+    def lose(self, others: torch.Tensor, rng) -> torch.Tensor:
+        """``others [B, n, n - 1]`` with each reply lost (read as no task) with ``loss``."""
+        if not self.loss:
+            return others
+        lost = rng.uniform(others.shape[2]).view(others.shape) < self.loss
+        return torch.where(lost, self.level.none, others)
 
     def record(self) -> None:
         """After a step's pushes: the agents that invoked ``com`` asked (once per invocation)."""

@@ -9,7 +9,9 @@ of the ``two-taxi`` domain:
 - Figure 6.13: waiting time of selfish HRL and COM-Cooperative HRL (ComCost 0) at arrival
   rates 5, 10 and 20 (the text's rate: mean steps between arrivals, ``envs.two_taxi``);
 - Figure 6.14: COM-Cooperative HRL with ComCost 0, 1, 5 and 10 against selfish HRL:
-  throughput, waiting time and the share of decisions made communicating.
+  throughput, waiting time and the share of decisions made communicating;
+- ``loss`` (beyond the text): COM-Cooperative HRL with ComCost 0 when 0%, 50% or 100% of the
+  replies are lost.
 
 Writes per figure ``runs/fig_6_x/`` (run folders with TensorBoard, CSV, PNG, summary),
 comparison plots of the training curves (mean over seeds) and ``table.md`` (final greedy and
@@ -44,6 +46,11 @@ FIGURES = {
     ),
     "fig_6_14": (
         [("selfish", {}), *((f"com-{c}", {}) for c in (0, 1, 5, 10))],
+        [THROUGHPUT, WAIT, COM_RATE],
+    ),
+    # beyond the text: what the learned policy does when replies are lost
+    "loss": (
+        [("com-0", {}), ("com-0-loss50", {}), ("com-0-loss100", {})],
         [THROUGHPUT, WAIT, COM_RATE],
     ),
 }

@@ -34,19 +34,19 @@ class BusyGAndB(TwoTaxiEnv):
         self.station_dest[:, B] = 0
 
 
-def _agent(cost: float, exploration=None, steps_learner=None) -> tuple[MultiAgentAgent, object]:
-    """Two taxis with hand-set tables (see the test below)."""
+def _agent(cost: float, **options) -> tuple[MultiAgentAgent, object]:
+    """Two greedy taxis communicating at ``cost`` (``options``: of ``Communication``)."""
     g = com_graph()
-    learner = steps_learner or MaxQLearner(g, 2)
+    learner = MaxQLearner(g, 2)
     agent = MultiAgentAgent(
         g,
         learner,
-        exploration or Greedy(),
+        Greedy(),
         agent_rng([0], 1, 2, "com"),
         1,
         2,
         cooperation=COM_COOPERATION,
-        communication=Communication(cost=cost),
+        communication=Communication(cost=cost, **options),
         learn=False,
     )
     return agent, learner
@@ -175,3 +175,41 @@ def test_a_com_population_equals_separate_runs():
             assert torch.equal(mine, getattr(together.learner, bank).data[2 * p : 2 * p + 2])
     com = together.graph.index["Com"]
     assert together.executor.stats.calls[:, com].sum() > 0  # it communicated: not vacuous
+
+
+def test_lost_and_late_replies():
+    # every reply lost: taxi 0 is told "no task" (Wait, the idle code) and keeps waiting
+    env = BusyGAndB()
+    agent, learner = _agent(0.0, loss=1.0)
+    _hand_set_tables(learner)
+    action = agent.start(env.reset())
+    action, _ = agent.decide(env.step(action))
+    assert agent.messages["told"][0, 0].tolist() == [CODE["Wait"]]
+    g = agent.graph
+    assert g.names[int(g.inst_node[agent.executor.stack.inst[0, 2]])] == "Wait"
+    # replies two steps late: taxi 1 chose GetB at the start (step 0); taxi 0, waiting and
+    # asking at every step, is told "no task" at steps 1 and 2 and GetB from step 3 on
+    agent, learner = _agent(0.0, delay=2)
+    _hand_set_tables(learner)
+    action = agent.start(env.reset())
+    for expected in ("Wait", "Wait", "GetB"):
+        action, _ = agent.decide(env.step(action))
+        assert agent.messages["told"][0, 0].tolist() == [CODE[expected]]
+    with pytest.raises(ValueError, match="loss"):
+        _agent_with(Communication(loss=1.5))
+    with pytest.raises(ValueError, match="delay"):
+        _agent_with(Communication(delay=-1))
+
+
+def _agent_with(communication):
+    g = com_graph()
+    return MultiAgentAgent(
+        g,
+        MaxQLearner(g, 2),
+        Greedy(),
+        agent_rng([0], 1, 2, "x"),
+        1,
+        2,
+        cooperation=COM_COOPERATION,
+        communication=communication,
+    )
