@@ -31,6 +31,13 @@ class BatchedEnv:
     ``_observe() -> dict`` (observation fields of every row), and list their state tensors in
     ``state_keys`` for checkpoints.
 
+    What a subclass can use: ``self.batch_size`` (``B = len(seeds) * E`` rows, learner ``p``'s
+    rows are ``p * E .. p * E + E - 1``), ``self.device`` and ``self.rng`` (a ``BatchRNG``, one
+    random stream per row). Draw random numbers for *every* row at every call (``rng.uniform``,
+    ``rng.integers``, then use them where needed), never only for the rows that need them: a
+    row's stream must not depend on the other rows, or a population would differ from
+    separate runs.
+
     Args:
         seeds: one seed per learner.
         envs_per_learner: ``E``.
