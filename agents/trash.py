@@ -68,7 +68,7 @@ from envs.trash import (
     TrashEnv,
 )
 from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
@@ -208,17 +208,12 @@ def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
 
 
 def _algos() -> dict[str, AlgoSpec]:
-    def spec(make_graph, description, multiagent=None, **env_options):
-        return AlgoSpec(
-            make_graph=make_graph,
-            make_learner=_maxq,
-            make_exploration=_epsilon,
-            train=TrainConfig(steps=60_000, eval_every=10_000, eval_episodes=16),
-            envs_per_learner=16,
-            description=description,
-            multiagent=multiagent,
-            env_options=env_options,
-        )
+    spec = algo_family(
+        make_learner=_maxq,
+        make_exploration=_epsilon,
+        train=TrainConfig(steps=60_000, eval_every=10_000, eval_episodes=16),
+        envs_per_learner=16,
+    )
 
     return {
         "cooperative": spec(

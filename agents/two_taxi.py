@@ -99,7 +99,7 @@ from envs.two_taxi import (
     TwoTaxiEnv,
 )
 from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
@@ -336,17 +336,12 @@ def com_graph() -> TaskGraph:
 
 
 def _algos() -> dict[str, AlgoSpec]:
-    def spec(make_graph, description, multiagent=None, **env_options):
-        return AlgoSpec(
-            make_graph=make_graph,
-            make_learner=_maxq,
-            make_exploration=_epsilon,
-            train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
-            envs_per_learner=16,
-            description=description,
-            multiagent=multiagent,
-            env_options=env_options,
-        )
+    spec = algo_family(
+        make_learner=_maxq,
+        make_exploration=_epsilon,
+        train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
+        envs_per_learner=16,
+    )
 
     algos = {
         "selfish": spec(two_taxi_hierarchy, "selfish multi-agent HRL: each taxi learns alone"),

@@ -57,6 +57,25 @@ class AlgoSpec:
     env_options: dict = field(default_factory=dict)
 
 
+def algo_family(**shared) -> Callable[..., AlgoSpec]:
+    """A domain's ``AlgoSpec`` maker with the fields its algorithms share bound once.
+
+    ``shared`` are ``AlgoSpec`` fields (learner, exploration, budget, ...); the maker takes
+    ``(make_graph, description, multiagent=None, **env_options)``, the fields that differ.
+    """
+
+    def spec(make_graph, description: str, multiagent=None, **env_options) -> AlgoSpec:
+        return AlgoSpec(
+            make_graph=make_graph,
+            description=description,
+            multiagent=multiagent,
+            env_options=env_options,
+            **shared,
+        )
+
+    return spec
+
+
 @dataclass
 class DomainSpec:
     """A domain: its env factory, backends, algorithms and reference values.

@@ -264,17 +264,7 @@ class MultiAgentAgent(HierarchicalAgent):
             raise ValueError(f"scheme must be 'continue', 'any' or 'all', got {scheme!r}")
         self.n_agents = n = int(n_agents)
         b = rng.batch_size
-        if b % n:
-            raise ValueError(f"{b} agent rows are not a multiple of {n} agents")
-        row = torch.arange(b, device=rng.device)
-        seed = row // (envs_per_learner * n)
-        first = first_table or 0
-        rows = first + (seed if shared_tables else seed * n + row % n)
-        expected = (b // (envs_per_learner * n)) * (1 if shared_tables else n)
-        if first_table is None and learner.n_learners != expected:
-            raise ValueError(f"the learner has {learner.n_learners} table sets, {expected} needed")
-        if learner.n_learners < first + expected:
-            raise ValueError(f"the learner has no table sets {first}..{first + expected - 1}")
+        rows = _table_sets_of_rows(rng, envs_per_learner, n, learner, shared_tables, first_table)
         super().__init__(
             graph,
             learner,
@@ -323,7 +313,7 @@ class MultiAgentAgent(HierarchicalAgent):
         """Every agent starts at the root; the first actions ``[B, n]``."""
         self._pending.zero_()
         if self.communication is not None:
-            self._com._history = None
+            self._com.restart()
         action = super().start(self._rows(obs))
         if self.communication is not None:
             self._com.record()
@@ -339,7 +329,6 @@ class MultiAgentAgent(HierarchicalAgent):
     def _rows(self, td: TensorDict) -> TensorDict:
         """The step as agent rows, with the others' ``U_l`` codes of every cooperation level."""
         rows = agent_rows(td)
-        self._others_tasks = []
         for level in self.levels:
             rows.set(level.key, self._others_code(level))
         return rows
@@ -377,12 +366,12 @@ class MultiAgentAgent(HierarchicalAgent):
         if n == 1:
             return torch.zeros_like(self.executor.learner)
         own = self.own_codes(level).view(-1, n)  # [B, n]
-        if self.communication is not None and level is self._com.level:
+        communicating = self.communication is not None and level is self._com.level
+        if communicating:
             own = self._com.late(own)
         others = own[:, self._others.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
-        if self.communication is not None and level is self._com.level:
-            others = self._com.lose(others, self.policy.rng)
-        self._others_tasks.append(others)
+        if communicating:
+            others = self._com.replies = self._com.lose(others, self.policy.rng)
         weights = level.radix ** torch.arange(n - 1, device=own.device)
         return (others * weights).sum(-1).view(-1)
 
@@ -415,6 +404,34 @@ class MultiAgentAgent(HierarchicalAgent):
         cut = torch.zeros_like(popped)
         cut[:, child] = now
         return cut
+
+
+def _table_sets_of_rows(
+    rng: BatchRNG,
+    envs_per_learner: int,
+    n: int,
+    learner: Learner,
+    shared_tables: bool,
+    first_table: int | None,
+) -> torch.Tensor:
+    """The learner's table set ``p * n + j`` of each agent row of ``rng`` (module docstring).
+
+    A clear error when the learner has too few sets (or, with ``first_table`` unset, not
+    exactly the sets needed).
+    """
+    b = rng.batch_size
+    if b % n:
+        raise ValueError(f"{b} agent rows are not a multiple of {n} agents")
+    row = torch.arange(b, device=rng.device)
+    seed = row // (envs_per_learner * n)
+    first = first_table or 0
+    rows = first + (seed if shared_tables else seed * n + row % n)
+    expected = (b // (envs_per_learner * n)) * (1 if shared_tables else n)
+    if first_table is None and learner.n_learners != expected:
+        raise ValueError(f"the learner has {learner.n_learners} table sets, {expected} needed")
+    if learner.n_learners < first + expected:
+        raise ValueError(f"the learner has no table sets {first}..{first + expected - 1}")
+    return rows
 
 
 class _WaitPolicy:
@@ -491,13 +508,16 @@ class _CommunicationLevel:
         b, n = agent.executor.stack.batch_size[0], agent.n_agents
         dev = g.node_children.device
         self.count = torch.zeros(b, dtype=torch.long, device=dev)
+        #: the replies of this step ``[B, n, n - 1]``: what ``com``'s choice reads
+        self.replies = torch.full((b // n, n, max(n - 1, 0)), -1, dtype=torch.long, device=dev)
         self.messages = TensorDict(
-            {
-                "asked": torch.zeros(b // n, n, dtype=torch.bool, device=dev),
-                "told": torch.full((b // n, n, max(n - 1, 0)), -1, dtype=torch.long, device=dev),
-            },
+            {"asked": torch.zeros(b // n, n, dtype=torch.bool, device=dev), "told": self.replies},
             batch_size=[b // n, n],
         )
+
+    def restart(self) -> None:
+        """A new start: no replies in flight."""
+        self._history = None
 
     def late(self, own: torch.Tensor) -> torch.Tensor:
         """Every agent's task as the replies tell it: ``delay`` steps old (``own [B, n]``)."""
@@ -522,9 +542,7 @@ class _CommunicationLevel:
         node = torch.take(self.agent.graph.inst_node, inst.clamp_min(0))
         asked = executor.invoked[:, self.depth] & (node == self.com)
         self.count += asked
-        k = self.agent.levels.index(self.level)
-        others = self.agent._others_tasks[k] if n > 1 else self.messages["told"]
-        members = torch.where(others >= len(self.level.members), -1, others)  # no task: -1
+        members = torch.where(self.replies >= len(self.level.members), -1, self.replies)
         asked = asked.view(-1, n)
         self.messages = TensorDict(
             {"asked": asked, "told": torch.where(asked[..., None], members, -1)},

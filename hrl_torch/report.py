@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
 import statistics
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
+import torch
+
+from hrl_torch import registry
+from hrl_torch.experiment import RunOptions, run_experiment
 from hrl_torch.runlog import mean_ci95, read_curves
 
 
@@ -85,17 +91,14 @@ def mean_sd(values: Sequence[float], digits: int = 1) -> str:
     return f"{statistics.mean(values):.{digits}f} ± {sd:.{digits}f}"
 
 
-def run_variant(domain_name: str, algo: str, env_options: dict, opts, cache: dict) -> Path:
+def run_variant(
+    domain_name: str, algo: str, env_options: dict, opts: RunOptions, cache: dict
+) -> Path:
     """One population run of ``algo`` with its env options updated by ``env_options``.
 
     Runs with the same algorithm and options are made once per ``cache`` (a figure script
-    shares them between figures). ``opts`` is a ``hrl_torch.experiment.RunOptions``.
+    shares them between figures).
     """
-    from dataclasses import replace
-
-    from hrl_torch import registry
-    from hrl_torch.experiment import run_experiment
-
     key = (domain_name, algo, tuple(sorted((k, repr(v)) for k, v in env_options.items())))
     if key not in cache:
         domain = registry.get(domain_name)
@@ -111,10 +114,6 @@ def figure_cli(description: str, figures: Sequence[str], figure) -> None:
 
     Calls ``figure(name, args, cache)`` for every chosen figure and prints what it returns.
     """
-    import argparse
-
-    import torch
-
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=200_000)
