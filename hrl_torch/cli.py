@@ -3,7 +3,7 @@
     hrl-torch list
     hrl-torch train taxi --algo maxq-q --seeds 10 [--steps N] [--envs-per-seed E]
     hrl-torch train taxi --algo maxq-q --seeds 10 --backend gymnasium
-    hrl-torch train taxi --algo maxq-q --resume runs/taxi__maxq-q__.../checkpoint.pt
+    hrl-torch train --resume runs/taxi__maxq-q__.../checkpoint.pt [--steps N]
 
 Domains live in the repository's ``agents/`` package (not in the wheel): run from the repository
 root, or pass ``--project DIR``.
@@ -15,6 +15,7 @@ import argparse
 import importlib
 import math
 import os
+import signal
 import sys
 
 import torch
@@ -72,22 +73,27 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--project", default=".", help="repository root holding agents/ and envs/")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list domains and algorithms")
-    train = sub.add_parser("train", help="train every seed of one algorithm as one population")
-    train.add_argument("domain")
-    train.add_argument("--algo", required=True)
+    train = sub.add_parser(
+        "train",
+        help="train every seed of one algorithm as one population",
+        epilog="With --resume the checkpoint's run continues: the domain, --algo and the "
+        "run's options come from the checkpoint; only --steps and --checkpoint-every may change.",
+    )
+    train.add_argument("domain", nargs="?", default=None)
+    train.add_argument("--algo", default=None)
     positive, natural = _int_at_least(1), _int_at_least(0)
-    train.add_argument("--seeds", type=positive, default=5, help="number of seeds (learners)")
-    train.add_argument("--seed-offset", type=natural, default=0, help="first seed")
-    train.add_argument("--backend", default="torch", help="torch (batched) or gymnasium")
+    train.add_argument("--seeds", type=positive, default=None, help="number of seeds (default 5)")
+    train.add_argument("--seed-offset", type=natural, default=None, help="first seed (default 0)")
+    train.add_argument("--backend", default=None, help="torch (batched, default) or gymnasium")
     train.add_argument("--envs-per-seed", type=positive, default=None)
     train.add_argument("--steps", type=positive, default=None, help="env steps per seed")
     train.add_argument("--eval-every", type=natural, default=None, help="0: only at the end")
     train.add_argument("--eval-episodes", type=natural, default=None, help="0: no evaluation")
     train.add_argument("--threshold", type=_finite, default=None)
     train.add_argument("--checkpoint-every", type=natural, default=None, help="0: at the end")
-    train.add_argument("--out", default="runs")
+    train.add_argument("--out", default=None, help="parent folder of run folders (default runs)")
     train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
-    train.add_argument("--device", type=_device, default="cpu", help="cpu, cuda, cuda:1, ...")
+    train.add_argument("--device", type=_device, default=None, help="cpu (default), cuda, ...")
     train.add_argument(
         "--collector", action="store_true", help="step through a TorchRL Collector's frames"
     )
@@ -110,7 +116,10 @@ def _device(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``hrl-torch`` command: user errors are one line and exit code 2."""
+    """Entry point of the ``hrl-torch`` command: user errors are one line and exit code 2.
+
+    An interrupted run (SIGINT, SIGTERM) exits with 130 / 143 after writing its checkpoint.
+    """
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     try:
         return _run(_parser().parse_args(argv))
@@ -119,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"hrl-torch: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before or after training: nothing to save
+        if debug:
+            raise
+        print("hrl-torch: interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -126,8 +140,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project)
     from hrl_torch import registry
-    from hrl_torch.checkpoint import CheckpointError, load_checkpoint
-    from hrl_torch.experiment import RunOptions, check_choice, format_summary, run_experiment
+    from hrl_torch.experiment import format_summary, run_experiment
 
     if args.command == "list":
         for name in registry.names():
@@ -136,33 +149,89 @@ def _run(args: argparse.Namespace) -> int:
             for algo, spec in sorted(domain.algos.items()):
                 print(f"    --algo {algo}: {spec.description}")
         return 0
-    try:  # every input is checked before anything is written
-        domain = registry.get(args.domain)
-        check_choice(domain, args.algo, args.backend)
-        if args.resume:
-            load_checkpoint(args.resume)
-    except (KeyError, FileNotFoundError, CheckpointError) as err:
-        raise UserError(err.args[0] if err.args else str(err)) from err
-    opts = RunOptions(
-        seeds=list(range(args.seed_offset, args.seed_offset + args.seeds)),
-        backend=args.backend,
-        envs_per_learner=args.envs_per_seed,
-        steps=args.steps,
-        eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes,
-        threshold=args.threshold,
-        checkpoint_every=args.checkpoint_every,
-        out=args.out,
-        resume=args.resume,
-        progress=not args.no_progress,
-        tensorboard=not args.no_tensorboard,
-        device=args.device,
-        collector=args.collector,
-    )
-    run_dir, summary = run_experiment(domain, args.algo, opts)
+    domain, algo, opts = _train_options(args)  # every input is checked before anything is written
+    if opts is None:
+        return 0  # a finished run: nothing to do
+    run_dir, summary = run_experiment(domain, algo, opts)
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
+    if summary["status"] == "interrupted":
+        name = summary["interrupted_by"]
+        print(
+            f"hrl-torch: {name} at step {summary['env_steps_per_learner']}: checkpoint written; "
+            f"continue with: hrl-torch train --resume {summary['checkpoint']}",
+            file=sys.stderr,
+        )
+        return 128 + signal.Signals[name].value
     return 0
+
+
+def _train_options(args: argparse.Namespace):
+    """``(domain, algo, RunOptions)`` of ``hrl-torch train``, every input checked.
+
+    ``opts`` is ``None`` for a resumed run that has already finished (said on stdout).
+    """
+    from hrl_torch import registry
+    from hrl_torch.checkpoint import CheckpointError, load_checkpoint
+    from hrl_torch.experiment import RunOptions, check_choice
+
+    given = {
+        "steps": args.steps,
+        "checkpoint_every": args.checkpoint_every,
+        "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes,
+        "threshold": args.threshold,
+        "envs_per_learner": args.envs_per_seed,
+        "backend": args.backend,
+        "device": args.device,
+        "collector": args.collector or None,
+    }
+    if args.seeds is not None or args.seed_offset is not None:
+        first, n = args.seed_offset or 0, args.seeds or 5
+        given["seeds"] = list(range(first, first + n))
+    given = {k: v for k, v in given.items() if v is not None}
+    display = {"progress": not args.no_progress, "tensorboard": not args.no_tensorboard}
+    try:
+        state = load_checkpoint(args.resume) if args.resume else None
+        if state is not None and "run" in state:
+            return _continuation(args, state, given, display)
+        if args.domain is None or args.algo is None:
+            if state is not None:
+                raise UserError(
+                    f"{args.resume} records no run configuration (written by an older "
+                    "hrl-torch): give the domain, --algo and the original run's options"
+                )
+            missing = "the domain" if args.domain is None else "--algo"
+            raise UserError(f"train needs {missing} (or --resume CHECKPOINT)")
+        domain = registry.get(args.domain)
+        check_choice(domain, args.algo, given.get("backend", "torch"))
+    except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
+        raise UserError(err.args[0] if err.args else str(err)) from err
+    given.setdefault("seeds", list(range(5)))
+    opts = RunOptions(**given, **display, out=args.out or "runs", resume=args.resume)
+    return domain, args.algo, opts
+
+
+def _continuation(args, state: dict, given: dict, display: dict):
+    """``_train_options`` for a checkpoint that records its run."""
+    from hrl_torch import registry
+    from hrl_torch.experiment import continue_options
+
+    run = state["run"]
+    if args.out is not None:
+        raise UserError("--out does not apply to --resume: a run continues in its own folder")
+    named = {"domain": args.domain, "algo": args.algo}
+    opts = continue_options(
+        args.resume, run, **{k: v for k, v in named.items() if v is not None}, **given, **display
+    )
+    step = int(state["trainer"]["step"])
+    if step >= opts.steps:
+        print(
+            f"{args.resume}: the run finished at step {step} (budget {opts.steps}); "
+            f"nothing to do (pass --steps N > {step} to continue it)"
+        )
+        return None, None, None
+    return registry.get(run["domain"]), run["algo"], opts
 
 
 if __name__ == "__main__":

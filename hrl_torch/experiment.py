@@ -12,11 +12,14 @@ import json
 import shutil
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
 
+from hrl_torch import __version__
+from hrl_torch.checkpoint import load_checkpoint
+from hrl_torch.envcheck import check_env
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration
 from hrl_torch.graph import TaskGraph
@@ -123,6 +126,11 @@ class RunOptions:
         tensorboard: write TensorBoard events.
         device: torch device of envs, tables, Task-Stacks and random numbers.
         collector: train from a TorchRL ``Collector``'s frames (``hrl_torch.collector``).
+        schedule_steps: the budget the exploration schedules are defined over (``None``: the
+            run's ``steps``). A continuation beyond the original budget keeps the original's,
+            so its schedules are the same functions of the absolute step.
+        check_env: before anything is written, run ``hrl_torch.envcheck.check_env`` on a small
+            env of the domain (two rows, 32 random steps; the training env is not touched).
     """
 
     seeds: Sequence[int] = (0,)
@@ -139,6 +147,26 @@ class RunOptions:
     tensorboard: bool = True
     device: str = "cpu"
     collector: bool = False
+    schedule_steps: int | None = None
+    check_env: bool = True
+
+
+#: what a checkpoint records of its run, besides the domain and algorithm
+RUN_KEYS = (
+    "seeds",
+    "backend",
+    "envs_per_learner",
+    "steps",
+    "schedule_steps",
+    "eval_every",
+    "eval_episodes",
+    "threshold",
+    "checkpoint_every",
+    "device",
+    "collector",
+)
+#: the options a continuation may change: its budget and how often it checkpoints
+CONTINUE_KEYS = ("steps", "checkpoint_every")
 
 
 def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
@@ -161,6 +189,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         if getattr(opts, k) is not None
     }
     config = replace(spec.train, progress=opts.progress, **changes)
+    schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
     n_envs = opts.envs_per_learner or spec.envs_per_learner
     env = domain.make_env(seeds, n_envs, opts.backend, **spec.env_options)
@@ -178,11 +207,11 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
     env = env.to(opts.device)
     eval_env = None if eval_env is None else eval_env.to(opts.device)
     evaluator = domain.make_evaluator(config) if domain.make_evaluator else None
-    return Trainer(
+    trainer = Trainer(
         env,
         graph,
         learner,
-        spec.make_exploration(config),
+        spec.make_exploration(replace(config, steps=schedule_steps)),
         config,
         eval_env,
         spec.executor,
@@ -191,15 +220,78 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         collector=opts.collector,
         multiagent=spec.multiagent,
     )
+    trainer.run_config = {
+        "domain": domain.name,
+        "algo": algo,
+        "seeds": seeds,
+        "backend": opts.backend,
+        "envs_per_learner": n_envs,
+        "steps": config.steps,
+        "schedule_steps": schedule_steps,
+        "eval_every": config.eval_every,
+        "eval_episodes": config.eval_episodes,
+        "threshold": config.threshold,
+        "checkpoint_every": config.checkpoint_every,
+        "device": opts.device,
+        "collector": opts.collector,
+        "version": __version__,
+    }
+    return trainer
+
+
+def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
+    """The ``RunOptions`` that continue the run a checkpoint records (``run``: its ``"run"``).
+
+    ``changes`` may name the ``domain`` and ``algo`` (they must be the run's) and set any
+    ``RunOptions`` field: ``steps`` and ``checkpoint_every`` to new values (a longer budget
+    continues with the original schedules), the display options freely; every other option
+    must equal the run's, else ``ValueError`` names it.
+    """
+    recorded = {k: run[k] for k in ("domain", "algo", *RUN_KEYS)}
+    for key, value in changes.items():
+        if key in recorded and key not in CONTINUE_KEYS and value != recorded[key]:
+            raise ValueError(
+                f"{key} {value!r} differs from the checkpoint's run ({key} {recorded[key]!r}); "
+                f"a resumed run keeps its settings (only {' and '.join(CONTINUE_KEYS)} may change)"
+            )
+    fields = {**recorded, **changes, "resume": str(checkpoint)}
+    del fields["domain"], fields["algo"]
+    return RunOptions(**fields)
+
+
+def check_domain_env(domain: DomainSpec, algo: str, backend: str = "torch") -> None:
+    """``check_env`` on a two-row env of ``domain`` as ``algo`` builds it (``EnvContractError``).
+
+    The torch backend is also checked for populations that equal separate runs.
+    """
+    spec = check_choice(domain, algo, backend)
+
+    def make(seeds, e):
+        return domain.make_env(seeds, e, backend, **spec.env_options)
+
+    env = make([0], 2)
+    graph = None if hasattr(env, "n_agents") else spec.make_graph()
+    check_env(env, graph, make_env=make if backend == "torch" else None, steps=32)
 
 
 def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Path, dict]:
     """Train ``algo`` on ``domain`` for every seed at once; write the run folder.
 
+    The domain's env is checked first (``check_domain_env``, unless ``opts.check_env`` is off).
+
+    With ``opts.resume`` the run continues in the checkpoint's folder: its ``hparams.json``
+    keeps the original settings and records the resume, and what was logged after the
+    checkpoint (an interrupted run's last rows) is dropped before logging goes on.
+
     Returns the run folder and the summary written to its ``summary.json``.
     """
     torch.set_num_threads(1)
     spec = check_choice(domain, algo, opts.backend)  # before any folder is made
+    state = load_checkpoint(opts.resume) if opts.resume else None
+    if state is not None and "run" in state:  # the recorded settings, checked against opts
+        opts = continue_options(opts.resume, state["run"], **_given(domain, algo, opts))
+    if opts.check_env:
+        check_domain_env(domain, algo, opts.backend)
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
     hparams = hparams_of(
         domain=domain.name,
@@ -209,12 +301,15 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         executor=spec.executor,
         envs_per_learner=spec.envs_per_learner,
     )
+    resumed_at = None if state is None else int(state["trainer"]["step"])
     made = not opts.resume  # make_run_dir made a fresh folder
     try:
-        logger = RunLogger(run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard)
+        logger = RunLogger(
+            run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
+        )
         trainer = build_trainer(domain, algo, opts, logger)
-        if opts.resume:
-            trainer.load(opts.resume)
+        if state is not None:
+            trainer.load_state_dict(state["trainer"])
     except BaseException:
         if made:  # a failed start leaves no half-made run folder behind
             shutil.rmtree(run_dir, ignore_errors=True)
@@ -236,6 +331,9 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     summary = {
         "domain": domain.name,
         "algo": algo,
+        "status": "interrupted" if result.interrupted else "finished",
+        "interrupted_by": result.interrupted,
+        "checkpoint": str(run_dir / "checkpoint.pt"),
         "backend": opts.backend,
         "seeds": list(opts.seeds),
         "envs_per_learner": trainer.E,
@@ -263,6 +361,14 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     }
     logger.write_summary(summary)
     return run_dir, summary
+
+
+def _given(domain: DomainSpec, algo: str, opts: RunOptions) -> dict:
+    """``opts`` as ``continue_options`` changes: every field that is set, ``resume`` aside."""
+    given = {"domain": domain.name, "algo": algo, **asdict(opts)}
+    given["seeds"] = list(opts.seeds)
+    del given["resume"]
+    return {k: v for k, v in given.items() if v is not None}
 
 
 def format_summary(summary: dict) -> str:

@@ -40,29 +40,54 @@ class RunLogger:
     Args:
         run_dir: the run folder.
         seeds: the seed of each learner (one TensorBoard run each).
-        hparams: logged once per seed as text.
+        hparams: logged once per seed as text and to ``hparams.json``.
         tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
+        resumed_at: a resumed run's checkpoint step. ``hparams.json`` keeps the original
+            settings and appends this resume to its ``"resumes"``; rows logged after the step
+            (by a run stopped between checkpoints) are dropped from ``progress.csv`` and
+            purged from TensorBoard, so the continuation logs no step twice.
     """
 
     def __init__(
-        self, run_dir: Path, seeds: Sequence[int], hparams: dict, tensorboard: bool = True
+        self,
+        run_dir: Path,
+        seeds: Sequence[int],
+        hparams: dict,
+        tensorboard: bool = True,
+        resumed_at: int | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.seeds = list(seeds)
+        self.csv_path = self.run_dir / "progress.csv"
+        hparams = self._record_hparams(hparams, resumed_at)
+        if resumed_at is not None and self.csv_path.exists():
+            _drop_rows_after(self.csv_path, resumed_at)
+        if not self.csv_path.exists():
+            self.csv_path.write_text("step,seed,metric,value\n")
         self.writers = []
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
+            purge = None if resumed_at is None else resumed_at + 1
             text = "\n".join(f"    {k}: {v}" for k, v in sorted(hparams.items()))
             for s in self.seeds:
-                w = SummaryWriter(str(self.run_dir / "tb" / f"seed_{s}"))
-                w.add_text("hparams", text, 0)
+                w = SummaryWriter(str(self.run_dir / "tb" / f"seed_{s}"), purge_step=purge)
+                if resumed_at is None:
+                    w.add_text("hparams", text, 0)
                 self.writers.append(w)
-        (self.run_dir / "hparams.json").write_text(json.dumps(hparams, indent=2, default=str))
-        self.csv_path = self.run_dir / "progress.csv"
-        if not self.csv_path.exists():
-            self.csv_path.write_text("step,seed,metric,value\n")
+
+    def _record_hparams(self, hparams: dict, resumed_at: int | None) -> dict:
+        """Write ``hparams.json``: the original's settings, plus every resume."""
+        path = self.run_dir / "hparams.json"
+        if resumed_at is not None and path.exists():
+            original = json.loads(path.read_text())
+            resume = {"at_step": resumed_at, "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+            resume.update({k: v for k, v in hparams.items() if original.get(k) != v})
+            original.setdefault("resumes", []).append(resume)
+            hparams = original
+        path.write_text(json.dumps(hparams, indent=2, default=str))
+        return hparams
 
     def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
         """Log ``{tag: [value per seed]}`` at env step ``step`` (NaN values are skipped)."""
@@ -76,7 +101,7 @@ class RunLogger:
                 if self.writers:
                     self.writers[k].add_scalar(tag, v, step)
         with open(self.csv_path, "a", newline="") as f:
-            csv.writer(f).writerows(rows)
+            csv.writer(f, lineterminator="\n").writerows(rows)
 
     def close(self) -> None:
         """Flush TensorBoard files."""
@@ -89,6 +114,17 @@ class RunLogger:
         path = self.run_dir / "summary.json"
         path.write_text(json.dumps(summary, indent=2, default=_json_default))
         return path
+
+
+def _drop_rows_after(csv_path: Path, step: int) -> None:
+    """Keep the rows of ``progress.csv`` logged at or before ``step`` (atomically)."""
+    with open(csv_path, newline="") as f:
+        rows = list(csv.reader(f))
+    kept = [rows[0], *(r for r in rows[1:] if int(r[0]) <= step)]
+    tmp = csv_path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        csv.writer(f, lineterminator="\n").writerows(kept)
+    tmp.replace(csv_path)
 
 
 def _json_default(x):

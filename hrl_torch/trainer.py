@@ -8,6 +8,8 @@ exploration and step-size schedules read that count.
 from __future__ import annotations
 
 import copy
+import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -75,6 +77,7 @@ class TrainResult:
     curve: list[tuple[int, list[float]]] = field(default_factory=list)
     final_steps: list[float] = field(default_factory=list)
     env_steps: list[int] = field(default_factory=list)  # real env steps per learner
+    interrupted: str | None = None  # "SIGINT" / "SIGTERM": stopped early, checkpoint written
 
 
 class Trainer:
@@ -142,6 +145,10 @@ class Trainer:
         # env steps each learner really took (rows being auto-reset take none)
         self.real_steps = torch.zeros(self.P, dtype=torch.float64, device=env.device)
         self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
+        #: what a checkpoint records of the run (``hrl_torch.experiment.run_config``)
+        self.run_config: dict | None = None
+        self._last_success: list[float] = []  # the latest evaluation's details
+        self._last_steps: list[float] = []
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -198,7 +205,11 @@ class Trainer:
             self._source = self._steps = None
 
     def train(self, steps: int | None = None, run_dir=None) -> TrainResult:
-        """Train until ``steps`` env steps per learner (default ``config.steps``)."""
+        """Train until ``steps`` env steps per learner (default ``config.steps``).
+
+        SIGINT (Ctrl-C) or SIGTERM ends the run after the current step: a checkpoint is written
+        (with ``run_dir``) and the result says ``interrupted``; a second signal acts as usual.
+        """
         cfg = self.config
         total = cfg.steps if steps is None else steps
         bar = tqdm(
@@ -209,26 +220,20 @@ class Trainer:
             desc="train",
             dynamic_ncols=True,
         )
-        while self.step < total:
-            t0 = time.perf_counter()
-            self.train_step()
-            self.train_seconds += time.perf_counter() - t0
-            bar.update(self.E)
-            if self.step >= self._next["log"]:
-                self._log_training()
-                self._next["log"] = self.step + cfg.log_every
-            if self.eval_env is not None and cfg.eval_every and self.step >= self._next["eval"]:
-                self._evaluate_and_log()
-                self._next["eval"] = self.step + cfg.eval_every
-            if run_dir is not None and cfg.checkpoint_every and self.step >= self._next["ckpt"]:
-                self.save(f"{run_dir}/checkpoint.pt")
-                self._next["ckpt"] = self.step + cfg.checkpoint_every
+        with _StopOnSignal() as stop:
+            while self.step < total and stop.signal is None:
+                t0 = time.perf_counter()
+                self.train_step()
+                self.train_seconds += time.perf_counter() - t0
+                bar.update(self.E)
+                self._after_step(cfg, run_dir)
         bar.close()
         final, success = [float("nan")] * self.P, [float("nan")] * self.P
         steps = [float("nan")] * self.P
-        if self.eval_env is not None:
+        if self.eval_env is not None and stop.signal is None:
             if not self.curve or self.curve[-1][0] != self.step:
                 self._evaluate_and_log()
+        if self.curve and self._last_success:  # the latest evaluation
             final, success, steps = self.curve[-1][1], self._last_success, self._last_steps
         if run_dir is not None:
             self.save(f"{run_dir}/checkpoint.pt")
@@ -243,7 +248,20 @@ class Trainer:
             list(self.curve),
             steps,
             [int(x) for x in self.real_steps],
+            stop.signal,
         )
+
+    def _after_step(self, cfg: TrainConfig, run_dir) -> None:
+        """Log, evaluate and checkpoint when their intervals are due."""
+        if self.step >= self._next["log"]:
+            self._log_training()
+            self._next["log"] = self.step + cfg.log_every
+        if self.eval_env is not None and cfg.eval_every and self.step >= self._next["eval"]:
+            self._evaluate_and_log()
+            self._next["eval"] = self.step + cfg.eval_every
+        if run_dir is not None and cfg.checkpoint_every and self.step >= self._next["ckpt"]:
+            self.save(f"{run_dir}/checkpoint.pt")
+            self._next["ckpt"] = self.step + cfg.checkpoint_every
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -399,8 +417,8 @@ class Trainer:
             "real_steps": self.real_steps.clone(),
             "next": dict(self._next),
             "last_eval": {
-                "success": list(getattr(self, "_last_success", [])),
-                "steps": list(getattr(self, "_last_steps", [])),
+                "success": list(self._last_success),
+                "steps": list(self._last_steps),
             },
         }
         if self.eval_env is not None:
@@ -448,9 +466,8 @@ class Trainer:
         self.real_steps = state["real_steps"].clone()
         self._next = {k: int(v) for k, v in state["next"].items()}
         last = state.get("last_eval", {})
-        if last.get("success"):  # the latest evaluation's details (a finished run resumed)
-            self._last_success = [float(x) for x in last["success"]]
-            self._last_steps = [float(x) for x in last["steps"]]
+        self._last_success = [float(x) for x in last.get("success", [])]
+        self._last_steps = [float(x) for x in last.get("steps", [])]
 
     def _pending_obs(self) -> dict:
         """Collector path: the domain output the agent acts on next (empty: direct loop)."""
@@ -461,12 +478,47 @@ class Trainer:
         return {} if self._resume_obs is None else self._resume_obs.to_dict()
 
     def save(self, path) -> None:
-        """Write a checkpoint of this trainer."""
-        save_checkpoint(path, {"trainer": self.state_dict()})
+        """Write a checkpoint of this trainer (and of the run's configuration, if known)."""
+        state = {"trainer": self.state_dict()}
+        if self.run_config is not None:
+            state["run"] = self.run_config
+        save_checkpoint(path, state)
 
     def load(self, path) -> None:
         """Continue from a checkpoint written by ``save``."""
         self.load_state_dict(load_checkpoint(path)["trainer"])
+
+
+class _StopOnSignal:
+    """Within ``with``: the first SIGINT or SIGTERM is recorded, not raised.
+
+    ``signal`` holds its name; the previous handlers come back at once, so a second signal
+    acts as usual.
+    Outside the main thread (where handlers cannot be set) nothing changes.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._previous: dict = {}
+
+    def __enter__(self) -> _StopOnSignal:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = {s: signal.signal(s, self._record) for s in self.SIGNALS}
+        return self
+
+    def _record(self, signum, frame) -> None:
+        self.signal = signal.Signals(signum).name
+        self._restore()
+
+    def _restore(self) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)
+        self._previous = {}
+
+    def __exit__(self, *exc) -> None:
+        self._restore()
 
 
 def _succeeded(td, key: str) -> torch.Tensor:

@@ -1,0 +1,243 @@
+"""Runs that survive users: resume from the checkpoint alone, Ctrl-C / SIGTERM that saves, a
+crash between checkpoints, a longer budget, a finished run, and refused changes."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from hrl_torch.checkpoint import load_checkpoint
+from hrl_torch.cli import main
+from hrl_torch.experiment import RunOptions, run_experiment
+from hrl_torch.trainer import Trainer
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ["--seeds", "2", "--envs-per-seed", "4", "--eval-every", "200", "--eval-episodes", "3"]
+
+
+def train(out, *extra) -> int:
+    return main(
+        ["train", "taxi", "--algo", "maxq-q", *SMALL, "--out", str(out), "--no-progress", *extra]
+    )
+
+
+def resume(run_dir, *extra) -> int:
+    return main(["train", "--resume", str(run_dir / "checkpoint.pt"), "--no-progress", *extra])
+
+
+def the_run(out) -> Path:
+    (run_dir,) = [p for p in Path(out).iterdir() if p.is_dir()]
+    return run_dir
+
+
+def logged(run_dir) -> list[tuple]:
+    """progress.csv's rows, timings (``perf/``) left out, in order."""
+    with open(run_dir / "progress.csv", newline="") as f:
+        return [tuple(r) for r in csv.reader(f) if not r[2].startswith("perf/")]
+
+
+def tables(run_dir) -> dict:
+    return load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["learner"]
+
+
+def assert_same_tables(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
+def snapshot(folder) -> dict:
+    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory):
+    """One uninterrupted 800-step run, the reference of the continuations."""
+    out = tmp_path_factory.mktemp("straight")
+    assert train(out, "--steps", "800") == 0
+    return the_run(out)
+
+
+def test_resume_from_the_checkpoint_alone_keeps_the_original_settings(tmp_path, straight, capsys):
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    assert resume(run_dir, "--steps", "800") == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["seeds"] == [0, 1] and summary["env_steps_per_learner"] == 800
+    assert summary["status"] == "finished"
+    hparams = json.loads((run_dir / "hparams.json").read_text())
+    assert hparams["options.steps"] == 400  # the original settings stay
+    (record,) = hparams["resumes"]
+    assert record["at_step"] == 400 and record["options.steps"] == 800
+    # the schedules stayed those of the 400-step budget: the same as one run with that budget
+    out = tmp_path / "long"
+    opts = RunOptions(
+        seeds=[0, 1],
+        envs_per_learner=4,
+        steps=800,
+        schedule_steps=400,
+        eval_every=200,
+        eval_episodes=3,
+        out=str(out),
+        progress=False,
+    )
+    run_experiment(__import__("hrl_torch.registry").registry.get("taxi"), "maxq-q", opts)
+    assert_same_tables(tables(run_dir), tables(the_run(out)))
+    assert logged(run_dir) == logged(the_run(out))
+
+
+def test_ctrl_c_saves_and_the_resumed_run_equals_the_uninterrupted_one(
+    tmp_path, straight, capsys, monkeypatch
+):
+    step = Trainer.train_step
+
+    def interrupted_at_300(self):
+        step(self)
+        if self.step == 300:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(Trainer, "train_step", interrupted_at_300)
+    assert train(tmp_path, "--steps", "800") == 130
+    run_dir = the_run(tmp_path)
+    ckpt = run_dir / "checkpoint.pt"
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"hrl-torch: SIGINT at step 300: checkpoint written; continue with: "
+        f"hrl-torch train --resume {ckpt}"
+    ]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert (summary["status"], summary["interrupted_by"]) == ("interrupted", "SIGINT")
+    assert load_checkpoint(ckpt)["trainer"]["step"] == 300
+    assert not list(run_dir.glob("*.tmp"))
+
+    monkeypatch.setattr(Trainer, "train_step", step)
+    assert resume(run_dir) == 0  # no options: the checkpoint's own budget
+    assert_same_tables(tables(run_dir), tables(straight))
+    assert logged(run_dir) == logged(straight)
+
+
+def test_sigterm_exits_143(tmp_path, capsys, monkeypatch):
+    step = Trainer.train_step
+
+    def terminated_at_100(self):
+        step(self)
+        if self.step == 100:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(Trainer, "train_step", terminated_at_100)
+    assert train(tmp_path, "--steps", "800") == 143
+    assert "hrl-torch: SIGTERM at step 100" in capsys.readouterr().err
+    # the handlers are back: a signal outside training acts as usual
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_crash_between_checkpoints_logs_no_step_twice(tmp_path, straight, monkeypatch):
+    step = Trainer.train_step
+
+    def crash_at_604(self):
+        step(self)
+        if self.step == 604:  # after the evaluation at 600
+            raise RuntimeError("power cut")
+
+    monkeypatch.setattr(Trainer, "train_step", crash_at_604)
+    with pytest.raises(RuntimeError, match="power cut"):
+        train(tmp_path, "--steps", "800", "--checkpoint-every", "200")
+    run_dir = the_run(tmp_path)
+    ckpt_step = load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["step"]
+    assert ckpt_step == 404  # checkpoints at 4, 204, 404 (the clock moves E = 4 per step)
+    assert max(int(r[0]) for r in logged(run_dir)[1:]) > ckpt_step  # rows logged after it
+
+    monkeypatch.setattr(Trainer, "train_step", step)
+    assert resume(run_dir) == 0
+    assert logged(run_dir) == logged(straight)  # the rows after the checkpoint were dropped
+    assert_same_tables(tables(run_dir), tables(straight))
+
+
+def test_a_finished_run_resumed_says_so_and_changes_nothing(straight, capsys):
+    before = snapshot(straight)
+    assert resume(straight) == 0
+    ckpt = straight / "checkpoint.pt"
+    assert capsys.readouterr().out.strip() == (
+        f"{ckpt}: the run finished at step 800 (budget 800); nothing to do "
+        "(pass --steps N > 800 to continue it)"
+    )
+    assert resume(straight, "--steps", "600") == 0
+    assert snapshot(straight) == before
+
+
+CHANGES = {
+    "--seeds 5": "seeds [0, 1, 2, 3, 4] differs from the checkpoint's run (seeds [0, 1])",
+    "--seed-offset 100": "seeds [100, 101, 102, 103, 104] differs from the checkpoint's run "
+    "(seeds [0, 1])",
+    "--envs-per-seed 8": "envs_per_learner 8 differs from the checkpoint's run "
+    "(envs_per_learner 4)",
+    "--eval-every 100": "eval_every 100 differs from the checkpoint's run (eval_every 200)",
+    "--backend gymnasium": "backend 'gymnasium' differs from the checkpoint's run "
+    "(backend 'torch')",
+    "--collector": "collector True differs from the checkpoint's run (collector False)",
+    "agv": "domain 'agv' differs from the checkpoint's run (domain 'taxi')",
+}
+SUFFIX = "; a resumed run keeps its settings (only steps and checkpoint_every may change)"
+
+
+@pytest.mark.parametrize("change", list(CHANGES))
+def test_a_change_of_the_run_is_refused_in_one_line(change, straight, capsys):
+    before = snapshot(straight)
+    extra = change.split()
+    head = extra if not change.startswith("-") else []
+    flags = [] if head else extra
+    args = ["train", *head, "--resume", str(straight / "checkpoint.pt"), "--steps", "900", *flags]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"hrl-torch: error: {CHANGES[change]}{SUFFIX}"]
+    assert snapshot(straight) == before
+
+
+def test_out_and_missing_arguments(straight, tmp_path, capsys):
+    args = ["train", "--resume", str(straight / "checkpoint.pt"), "--out", str(tmp_path)]
+    assert main(args) == 2
+    assert capsys.readouterr().err.strip() == (
+        "hrl-torch: error: --out does not apply to --resume: a run continues in its own folder"
+    )
+    assert main(["train", "taxi", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "hrl-torch: error: train needs --algo (or --resume CHECKPOINT)"
+    )
+    assert main(["train", "--algo", "maxq-q"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "hrl-torch: error: train needs the domain (or --resume CHECKPOINT)"
+    )
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_real_ctrl_c_on_the_command_line(tmp_path):
+    """The installed command in its own process: SIGINT once training logs, exit 130."""
+    cmd = [sys.executable, "-m", "hrl_torch.cli", "--project", str(ROOT), "train", "taxi"]
+    cmd += ["--algo", "maxq-q", *SMALL, "--steps", "100000000", "--out", str(tmp_path)]
+    cmd += ["--no-progress", "--no-tensorboard"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # wait for the first evaluation's rows
+        runs = [p for p in tmp_path.iterdir() if p.is_dir()]
+        if runs and "charts/eval_return" in _text(runs[0] / "progress.csv"):
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    (line,) = err.strip().splitlines()
+    assert line.startswith("hrl-torch: SIGINT at step ") and line.endswith("checkpoint.pt")
+    run_dir = the_run(tmp_path)
+    state = load_checkpoint(run_dir / "checkpoint.pt")
+    assert state["run"]["steps"] == 100000000 and state["trainer"]["step"] > 0
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "interrupted"
+
+
+def _text(path: Path) -> str:
+    return path.read_text() if path.exists() else ""
