@@ -42,6 +42,7 @@ def check_env(
     make_env: Callable[[Sequence[int], int], object] | None = None,
     steps: int = 64,
     torchrl: bool = False,
+    gymnasium: bool = False,
 ) -> None:
     """Step ``env`` with random actions and check every output; raise ``EnvContractError``.
 
@@ -54,6 +55,8 @@ def check_env(
             must not depend on the other rows).
         steps: random steps to take.
         torchrl: also run TorchRL's ``check_env_specs`` on the env's ``TorchRLEnv`` wrapper.
+        gymnasium: also run gymnasium's ``check_env`` on one row of ``make_env`` as a
+            ``gymnasium.Env`` (``hrl_torch.adapters.BatchedToGymnasium``; needs ``make_env``).
     """
     failures: list[str] = []
     state = env.state_dict()
@@ -72,6 +75,8 @@ def check_env(
             _check_population(make_env, steps, failures)
         if torchrl:
             _check_torchrl(env, failures)
+        if gymnasium:
+            _check_gymnasium(make_env, failures)
     finally:
         if state:
             env.load_state_dict(state)
@@ -244,3 +249,16 @@ def _check_torchrl(env, failures: list[str]) -> None:
         check_env_specs(TorchRLEnv(env))
     except Exception as err:
         failures.append(f"TorchRL check_env_specs: {str(err).splitlines()[0]}")
+
+
+def _check_gymnasium(make_env, failures: list[str]) -> None:
+    import gymnasium.utils.env_checker
+
+    from hrl_torch.adapters import BatchedToGymnasium
+
+    if make_env is None:
+        raise ValueError("check_env(gymnasium=True) needs make_env")
+    try:
+        gymnasium.utils.env_checker.check_env(BatchedToGymnasium(make_env), skip_render_check=True)
+    except Exception as err:
+        failures.append(f"gymnasium check_env: {str(err).splitlines()[0]}")

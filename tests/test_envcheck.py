@@ -30,8 +30,10 @@ def test_every_domain_keeps_the_contract(name):
     assert before["rng"] == after["rng"]
 
 
-def test_torchrl_check_env_specs_runs_on_the_wrapper():
-    check_env(TaxiEnv([0], 2), make_graph(), torchrl=True, steps=8)
+def test_torchrl_and_gymnasium_checkers_run_on_the_wrappers():
+    check_env(TaxiEnv([0], 2), make_graph(), TaxiEnv, steps=8, torchrl=True, gymnasium=True)
+    with pytest.raises(EnvContractError, match="gymnasium check_env: "):
+        check_env(TaxiEnv([0], 2), make_env=StateOutOfRange, steps=2, gymnasium=True)
 
 
 class RewardColumn(TaxiEnv):
@@ -51,6 +53,13 @@ class RowOutOfRange(TaxiEnv):
     def _observe(self):
         fields = super()._observe()
         fields["passenger"] = fields["passenger"] + 1  # 1..5, declared 5 values
+        return fields
+
+
+class StateOutOfRange(TaxiEnv):
+    def _observe(self):
+        fields = super()._observe()
+        fields["observation"] = fields["observation"] + 500
         return fields
 
 
