@@ -5,8 +5,9 @@
     hrl-torch train taxi --algo maxq-q --seeds 10 --backend gymnasium
     hrl-torch train --resume runs/taxi__maxq-q__.../checkpoint.pt [--steps N]
 
-Domains live in the repository's ``agents/`` package (not in the wheel): run from the repository
-root, or pass ``--project DIR``.
+Domains: the repository's ``agents/`` package (not in the wheel: run from the repository root,
+or pass ``--project DIR``), installed plugins (entry-point group ``hrl_torch.domains``) and
+modules named with ``--domain-module MODULE``.
 """
 
 from __future__ import annotations
@@ -27,17 +28,29 @@ class UserError(Exception):
     """A mistake in the command line: one line on stderr, exit code 2, nothing written."""
 
 
-def _load_domains(project: str) -> None:
+def _load_domains(project: str, modules: list[str]) -> None:
+    """Register the built-in domains (``agents`` under ``project``), plugins and ``modules``."""
+    from hrl_torch import registry
+
     path = os.path.abspath(project)
     if path not in sys.path:
         sys.path.insert(0, path)
     try:
         importlib.import_module("agents")
     except ModuleNotFoundError as err:
+        if err.name != "agents":  # the package exists but is broken: a bug, not a user error
+            raise
+    try:
+        registry.load_plugins()
+        for module in modules:
+            registry.load_module(module)
+    except (ValueError, ModuleNotFoundError) as err:
+        raise UserError(str(err)) from err
+    if not registry.names():
         raise UserError(
-            f"no 'agents' package under {path} ({err}); run from the repository root "
-            "or pass --project"
-        ) from err
+            f"no domains: no 'agents' package under {path} (run from the repository root or "
+            "pass --project), no installed plugin, no --domain-module"
+        )
 
 
 class _Parser(argparse.ArgumentParser):
@@ -71,6 +84,13 @@ def _finite(text: str) -> float:
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hrl-torch", description=__doc__.split("\n")[0])
     parser.add_argument("--project", default=".", help="repository root holding agents/ and envs/")
+    parser.add_argument(
+        "--domain-module",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import MODULE and register its DOMAIN / DOMAINS (repeatable)",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list domains and algorithms")
     train = sub.add_parser(
@@ -138,14 +158,19 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     if not os.path.isdir(args.project):
         raise UserError(f"--project {args.project}: no such folder")
-    _load_domains(args.project)
+    _load_domains(args.project, args.domain_module)
     from hrl_torch import registry
     from hrl_torch.experiment import format_summary, run_experiment
 
     if args.command == "list":
         for name in registry.names():
-            domain = registry.get(name)
-            print(f"{name}: {domain.description} (backends: {', '.join(domain.backends)})")
+            try:
+                domain = registry.get(name)
+            except ValueError as err:  # a broken plugin does not hide the others
+                print(f"{name} [{registry.source(name)}]: {err}")
+                continue
+            backends = ", ".join(domain.backends)
+            print(f"{name} [{registry.source(name)}]: {domain.description} (backends: {backends})")
             for algo, spec in sorted(domain.algos.items()):
                 print(f"    --algo {algo}: {spec.description}")
         return 0

@@ -1,19 +1,70 @@
-"""Domains by name, registered lazily by import string (``"agents.taxi:DOMAIN"``)."""
+"""Domains by name: built in, from installed plugins, or from a module named on the CLI.
+
+- Built-in domains (the repository's ``agents`` package) register by import string
+  (``register("taxi", "agents.taxi:DOMAIN")``, imported on first use).
+- A plugin is an installed package that declares its domains in the entry-point group
+  ``hrl_torch.domains`` (``corridor = "hrl_corridor:DOMAIN"`` in its ``pyproject.toml``);
+  ``load_plugins`` registers them.
+- ``load_module("my_domains")`` imports a module and registers every ``DomainSpec`` it defines
+  as ``DOMAIN`` or in ``DOMAINS`` (or that it registers itself on import).
+"""
 
 from __future__ import annotations
 
 import importlib
+from importlib.metadata import entry_points
 
 from hrl_torch.experiment import DomainSpec
 
-_DOMAINS: dict[str, str] = {}
+ENTRY_POINT_GROUP = "hrl_torch.domains"
+
+_DOMAINS: dict[str, str | DomainSpec] = {}
+_SOURCES: dict[str, str] = {}
 
 
-def register(name: str, entry: str) -> None:
-    """Register domain ``name`` as ``"module:attribute"`` (imported on first use)."""
-    if ":" not in entry:
+def register(name: str, entry: str | DomainSpec, source: str = "built-in") -> None:
+    """Register domain ``name`` as ``"module:attribute"`` (imported on first use) or a spec.
+
+    Raises ``ValueError`` when another source already registered ``name``.
+    """
+    if isinstance(entry, str) and ":" not in entry:
         raise ValueError(f"entry must look like 'module:attribute', got {entry!r}")
+    if name in _DOMAINS and _DOMAINS[name] != entry:
+        raise ValueError(
+            f"domain {name!r} is registered twice: {_describe(_DOMAINS[name])} "
+            f"({_SOURCES[name]}) and {_describe(entry)} ({source}); rename one"
+        )
     _DOMAINS[name] = entry
+    _SOURCES[name] = source
+
+
+def load_plugins() -> list[str]:
+    """Register the domains of installed plugins (group ``hrl_torch.domains``); their names."""
+    found = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        dist = ep.dist.name if ep.dist is not None else "?"
+        register(ep.name, ep.value, source=f"plugin {dist}")
+        found.append(ep.name)
+    return found
+
+
+def load_module(module: str) -> list[str]:
+    """Import ``module`` and register its ``DOMAIN`` / ``DOMAINS``; the names it added.
+
+    Raises ``ModuleNotFoundError`` for a module that cannot be imported and ``ValueError`` for
+    one that defines and registers no domain.
+    """
+    before = set(_DOMAINS)
+    mod = importlib.import_module(module)
+    specs = list(getattr(mod, "DOMAINS", []))
+    if isinstance(getattr(mod, "DOMAIN", None), DomainSpec):
+        specs.append(mod.DOMAIN)
+    for spec in specs:
+        register(spec.name, spec, source=f"module {module}")
+    added = sorted(set(_DOMAINS) - before)
+    if not added and not specs:
+        raise ValueError(f"module {module!r} defines no DOMAIN or DOMAINS (DomainSpec)")
+    return added
 
 
 def names() -> list[str]:
@@ -21,9 +72,29 @@ def names() -> list[str]:
     return sorted(_DOMAINS)
 
 
+def source(name: str) -> str:
+    """Where domain ``name`` came from: ``built-in``, ``plugin <dist>`` or ``module <name>``."""
+    return _SOURCES[name]
+
+
 def get(name: str) -> DomainSpec:
     """The ``DomainSpec`` registered as ``name``."""
     if name not in _DOMAINS:
         raise KeyError(f"unknown domain {name!r}; registered: {names()}")
-    module, attr = _DOMAINS[name].split(":")
-    return getattr(importlib.import_module(module), attr)
+    entry = _DOMAINS[name]
+    if isinstance(entry, DomainSpec):
+        return entry
+    module, attr = entry.split(":")
+    try:
+        spec = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise ValueError(
+            f"domain {name!r} ({_SOURCES[name]}): cannot load {entry} ({err})"
+        ) from err
+    if not isinstance(spec, DomainSpec):
+        raise ValueError(f"domain {name!r} ({_SOURCES[name]}): {entry} is not a DomainSpec")
+    return spec
+
+
+def _describe(entry: str | DomainSpec) -> str:
+    return entry if isinstance(entry, str) else f"DomainSpec {entry.name!r}"
