@@ -113,6 +113,55 @@ def test_episodic_root_value():
     assert math.isnan(ho.gain) and ho.value[A_] == -1.0 and ho.table[1, A_] == 0
 
 
+# ----------------------------------------------------------------------------- loops off the path
+# a0: 0 -> 1 -> 2 (the root ends at 2), 3 -> 3; a1: 0 -> 3 -> 2. Rewards of a0: -1, 5, 0, -1.
+LOOPY = model_of([[1, 3], [2, 1], [2, 2], [3, 2]], [[-1, -2], [5, 0], [0, 0], [-1, 7]])
+
+
+def loopy_graph():
+    names = ["a0", "a1"]
+    root = Subtask("Root", names, 4, abstract=by_state, terminated=lambda o: o["observation"] == 2)
+    return TaskGraph("Root", [root, *(Primitive(n, k) for k, n in enumerate(names))], 2)
+
+
+def root_table(g, choices):
+    table = torch.zeros(g.n_instances, 4, dtype=torch.long)
+    table[0] = torch.tensor(choices)
+    return table
+
+
+def test_policy_value_ignores_a_loop_the_policy_never_reaches():
+    g = loopy_graph()
+    table = root_table(g, [0, 0, 0, 0])  # a0 everywhere: state 3 loops, but 0 -> 1 -> 2
+    starts = torch.tensor([0])
+    assert A.policy_value(g, LOOPY, table, starts=starts)[0] == -1 + 5
+    half = A.policy_value(g, LOOPY, table, gamma=0.5, starts=starts)
+    assert half[0] == -1 + 0.5 * 5 and half[1:].isnan().all()
+
+
+def test_policy_value_names_the_loop_it_reaches():
+    g = loopy_graph()
+    table = root_table(g, [1, 0, 0, 0])  # a1 from 0 into state 3, where a0 loops
+    with pytest.raises(ValueError, match="'Root' in state 3, where it loops"):
+        A.policy_value(g, LOOPY, table, starts=torch.tensor([0]))
+    half = A.policy_value(g, LOOPY, table, gamma=0.5, starts=torch.tensor([0]))
+    assert half[0] == pytest.approx(-2 + 0.5 * -1 / (1 - 0.5))  # discounted, it is defined
+
+
+def test_a_root_stuck_at_the_episode_end_asks_for_a_terminated_predicate():
+    go = Subtask(
+        "Go",
+        ["left", "right"],
+        4,
+        abstract=by_state,
+        terminated=lambda o: (o["observation"] == X) | (o["observation"] == Y),
+    )
+    root = Subtask("Root", ["Go"], 4, abstract=by_state)  # no terminated: stuck where Go ends
+    g = TaskGraph("Root", [root, go, Primitive("left", 0), Primitive("right", 1)], 2)
+    with pytest.raises(GraphError, match=r"in state 1, .*\(Go: terminated\).*`terminated`"):
+        A.policy_value(g, TWO_EXITS, torch.zeros(2, 4, dtype=torch.long), starts=torch.tensor([0]))
+
+
 # ----------------------------------------------------------------------------- random MDPs
 def random_model(seed, n_states=6, n_actions=3):
     gen = torch.Generator().manual_seed(seed)

@@ -37,8 +37,14 @@ Functions:
   the gain is the same for all terminating policies, so RAR is indifferent where this
   criterion (and HH-learning's, reward minus a gain above -1 per step) picks the shortest way.
   Children are modelled as executed inside the parent: they also stop where the parent ends.
+- ``check_abstractions``: Dietterich's conditions for safe state abstraction (max-node, leaf and
+  result distribution irrelevance; termination and shielding as the exemptions they are),
+  checked on every pair of states an abstraction merges and a policy can meet; one
+  ``Violation`` (condition, subtask, child, the two full states, a message) per unsafe merge.
+  See ``hrl_torch.analysis.abstraction`` for what is exact and what is sound but incomplete.
 """
 
+from hrl_torch.analysis.abstraction import Violation, check_abstractions
 from hrl_torch.analysis.chains import (
     ChainGain,
     FiniteModel,
@@ -68,6 +74,8 @@ __all__ = [
     "RecursiveResult",
     "SolverOptions",
     "TablePolicy",
+    "Violation",
+    "check_abstractions",
     "flat_optimal",
     "flatten",
     "hierarchically_optimal",

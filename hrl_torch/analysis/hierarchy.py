@@ -30,6 +30,7 @@ class _Unrolled:
         ctx = g.context(model.observations)
         self.abstract = ctx.abstract.T  # [n_nodes, S]
         self.term = ctx.terminated.T  # [n_nodes, S]
+        self.blocked = ctx.blocked.T  # [n_nodes, S]: terminal states (events excluded)
         has_child = ctx.available.any(-1)  # [S, n_nodes]
         kids = g.node_children.clamp_min(0)
         self.ok_node = ctx.available & (has_child[:, kids] | g.node_is_primitive[kids])
@@ -58,9 +59,7 @@ class _Unrolled:
             for d in range(int(depths.max()), -1, -1)
             if len(k := ((depths == d) & ~self.is_prim).nonzero().squeeze(1))
         ]
-        if starts is not None and starts.dtype != torch.bool:
-            starts = torch.zeros(n, dtype=torch.bool).index_fill_(0, starts.long(), True)
-        root_ok = valid[0] if starts is None else valid[0] & starts
+        root_ok = valid[0] & _start_mask(starts, n)
         self.reach = self._reachable(valid, root_ok)
         self.node_reach = (
             torch.zeros(g.n_nodes, n).index_add_(0, inode, self.reach.float()) > 0
@@ -98,11 +97,31 @@ class _Unrolled:
                     reached[child] |= reached[k] & self.available[k, slot]
         if bool((reached & ~valid).any()):
             k, s = (int(v) for v in (reached & ~valid).nonzero()[0])
-            raise GraphError(
-                f"{self.graph.instance_path(k)!r} can be on top in state {s} "
-                "with no available child: the hierarchy can get stuck"
-            )
+            raise GraphError(self._stuck_message(k, s))
         return reached
+
+    def _stuck_message(self, k: int, s: int) -> str:
+        """Why instance ``k`` has no usable child in state ``s``, and what to do about it."""
+        g = self.graph
+        node = int(g.inst_node[k])
+        reasons = []
+        for slot, child in enumerate(g.node_children[node, : int(g.node_n_children[node])]):
+            if bool(self.blocked[child, s]):
+                why = "terminated"
+            elif not bool(self.available[k, slot, s]):
+                why = "not initiable or masked"
+            else:
+                why = "none of its own children available"
+            reasons.append(f"{g.names[int(child)]}: {why}")
+        where = f"{g.instance_path(k)!r} can be on top in state {s}, where no child is usable"
+        where += f" ({', '.join(reasons)})"
+        if k == 0:
+            return (
+                f"{where}. An episodic analysis needs a `terminated` predicate on the root that "
+                f"holds where the episode ends (is state {s} such a state?); the env's own "
+                "episode end is not part of the finite model"
+            )
+        return f"{where}: the hierarchy can get stuck"
 
     def resolve(self, table: torch.Tensor) -> torch.Tensor:
         """Child slot ``[I, S]`` of an abstract-state table (first usable child if unusable)."""
@@ -232,11 +251,63 @@ def policy_value(
     gamma: float = 1.0,
     starts: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Expected ``gamma``-discounted reward until the root ends, from each start state ``[S]``."""
+    """Expected ``gamma``-discounted reward until the root ends, from each start state ``[S]``.
+
+    Solved over the decision states the policy reaches from the starts only, so what the table
+    does elsewhere (e.g. loop) does not matter. NaN where the root does not start.
+
+    Raises:
+        ValueError: ``gamma == 1`` and the root never ends from some reached decision state
+            (the message names the instance and the state where the policy loops).
+    """
     chain = flatten(graph, model, table, starts)
-    n = len(chain.reward)
-    v = torch.linalg.solve(torch.eye(n, dtype=F64) - gamma * chain.transition, chain.reward)
-    return _start_values(chain, v)
+    start_rows = chain.index[0][_start_mask(starts, model.n_states)]
+    start_rows = start_rows[start_rows >= 0]
+    src, dst = (chain.transition > 0).nonzero(as_tuple=True)
+    reached = _closure(src, dst, start_rows, len(chain.reward))
+    if gamma >= 1.0:
+        can_end = _closure(dst, src, (chain.end > 0).nonzero().squeeze(1), len(chain.reward))
+        if bool((reached & ~can_end).any()):
+            k, s = _loop_in(chain, reached & ~can_end)
+            raise ValueError(
+                f"the root never ends under this policy: from a start state it reaches "
+                f"{graph.instance_path(k)!r} in state {s}, where it loops (the undiscounted "
+                "value is not defined; give a gamma < 1 or a policy that ends)"
+            )
+    rows = reached.nonzero().squeeze(1)
+    p = chain.transition[rows][:, rows]
+    v = torch.full_like(chain.reward, torch.nan)
+    v[rows] = torch.linalg.solve(torch.eye(len(rows), dtype=F64) - gamma * p, chain.reward[rows])
+    return torch.where(_start_mask(starts, model.n_states), _start_values(chain, v), torch.nan)
+
+
+def _start_mask(starts: torch.Tensor | None, n: int) -> torch.Tensor:
+    """``starts`` (bool, indices or ``None`` for all) as a ``[n]`` bool mask."""
+    if starts is None:
+        return torch.ones(n, dtype=torch.bool)
+    if starts.dtype == torch.bool:
+        return starts
+    return torch.zeros(n, dtype=torch.bool).index_fill_(0, starts.long(), True)
+
+
+def _closure(src: torch.Tensor, dst: torch.Tensor, seeds: torch.Tensor, n: int) -> torch.Tensor:
+    """Rows reachable from ``seeds`` along the edges ``src -> dst`` (``[n]`` bool)."""
+    reached = torch.zeros(n, dtype=torch.bool)
+    reached[seeds] = True
+    while True:
+        wider = reached.clone()
+        wider[dst[reached[src]]] = True
+        if torch.equal(wider, reached):
+            return reached
+        reached = wider
+
+
+def _loop_in(chain: FlatChain, trapped: torch.Tensor) -> tuple[int, int]:
+    """``(instance, state)`` on a cycle inside ``trapped``, rows that can never end the root."""
+    row = int(trapped.nonzero()[0])
+    for _ in range(int(trapped.sum())):  # every trapped row moves to a trapped row
+        row = int((chain.transition[row] * trapped).argmax())
+    return int(chain.inst[row]), int(chain.state[row])
 
 
 class TablePolicy:
