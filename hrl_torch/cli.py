@@ -4,6 +4,7 @@
     hrl-torch train taxi --algo maxq-q --seeds 10 [--steps N] [--envs-per-seed E]
     hrl-torch train taxi --algo maxq-q --seeds 10 --backend gymnasium
     hrl-torch train --resume runs/taxi__maxq-q__.../checkpoint.pt [--steps N]
+    hrl-torch eval runs/taxi__maxq-q__... [--episodes N] [--worst K]
 
 Domains: the repository's ``agents/`` package (not in the wheel: run from the repository root,
 or pass ``--project DIR``), installed plugins (entry-point group ``hrl_torch.domains``) and
@@ -119,7 +120,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     train.add_argument("--no-progress", action="store_true")
     train.add_argument("--no-tensorboard", action="store_true")
-    for p in (parser, train):
+    evaluate = sub.add_parser(
+        "eval", help="re-evaluate a run's checkpoint greedily and show its worst episodes"
+    )
+    evaluate.add_argument("run_dir", help="a run folder (holding checkpoint.pt)")
+    evaluate.add_argument(
+        "--episodes", type=positive, default=None, help="per seed (default: the run's)"
+    )
+    evaluate.add_argument("--worst", type=natural, default=10, help="episodes to show")
+    for p in (parser, train, evaluate):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return parser
 
@@ -174,6 +183,8 @@ def _run(args: argparse.Namespace) -> int:
             for algo, spec in sorted(domain.algos.items()):
                 print(f"    --algo {algo}: {spec.description}")
         return 0
+    if args.command == "eval":
+        return _evaluate(args)
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written
     if opts is None:
         return 0  # a finished run: nothing to do
@@ -188,6 +199,50 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 128 + signal.Signals[name].value
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    """``hrl-torch eval RUN_DIR``: per-seed means and the worst episodes; writes nothing."""
+    from hrl_torch.checkpoint import CheckpointError
+    from hrl_torch.experiment import evaluate_run
+    from hrl_torch.runlog import fields_text
+
+    try:
+        trainer, records = evaluate_run(args.run_dir, args.episodes)
+    except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
+        raise UserError(err.args[0] if err.args else str(err)) from err
+    run = trainer.run_config
+    print(f"{run['domain']} / {run['algo']} at step {trainer.step}, greedy evaluation:")
+    if records is None:
+        values, _ = trainer.evaluate()
+        for seed, v in zip(run["seeds"], values.tolist(), strict=True):
+            print(f"  seed {seed}: {trainer.evaluator.tags[0]} {v:.3f}")
+        print("(a continuing domain: no episodes to list)")
+        return 0
+    n = records.batch_size[0] // trainer.P
+    for p, seed in enumerate(run["seeds"]):
+        mine = records[p * n : (p + 1) * n]
+        print(
+            f"  seed {seed}: return {float(mine['return'].mean()):.3f}, "
+            f"success {float(mine['success'].float().mean()):.2f}, "
+            f"length {float(mine['length'].mean()):.1f} over {n} episodes"
+        )
+    order = sorted(range(records.batch_size[0]), key=lambda r: float(records["return"][r]))
+    if args.worst:
+        print(f"worst {min(args.worst, len(order))} episodes:")
+    names = trainer.graph.names
+    for r in order[: args.worst]:
+        k = int(records["n_decisions"][r])
+        decisions = " ".join(names[int(x)] for x in records["decisions"][r, :k])
+        flags = ("success" if bool(records["success"][r]) else "failure") + (
+            ", truncated" if bool(records["truncated"][r]) else ""
+        )
+        print(
+            f"  seed {int(records['seed'][r])} episode {int(records['episode'][r])}: "
+            f"return {float(records['return'][r]):.3f}, length {int(records['length'][r])} "
+            f"({flags}); start {fields_text(records['start'][r])}; root: {decisions}"
+        )
     return 0
 
 

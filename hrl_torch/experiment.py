@@ -363,6 +363,32 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     return run_dir, summary
 
 
+def evaluate_run(run_dir: str | Path, episodes: int | None = None):
+    """Re-evaluate a run folder's checkpoint: ``(trainer, records)``.
+
+    ``records`` is ``Trainer.evaluate_episodes``'s TensorDict (one greedy episode per row;
+    ``None`` for continuing domains, whose evaluation is a throughput). ``episodes`` changes
+    the number of evaluation episodes per seed (default: the run's). Nothing is written.
+    """
+    from hrl_torch import registry
+
+    path = Path(run_dir) / "checkpoint.pt"
+    state = load_checkpoint(path)
+    if "run" not in state:
+        raise ValueError(f"{path} records no run configuration (written by an older hrl-torch)")
+    run = state["run"]
+    opts = continue_options(path, run, progress=False, tensorboard=False)
+    if episodes is not None:
+        opts.eval_episodes = episodes
+    domain = registry.get(run["domain"])
+    trainer = build_trainer(domain, run["algo"], opts)
+    trainer.learner.load_state_dict(state["trainer"]["learner"])
+    trainer.step = int(state["trainer"]["step"])
+    if trainer.evaluator is not None:  # continuing: greedy throughput per seed
+        return trainer, None
+    return trainer, trainer.evaluate_episodes()
+
+
 def _given(domain: DomainSpec, algo: str, opts: RunOptions) -> dict:
     """``opts`` as ``continue_options`` changes: every field that is set, ``resume`` aside."""
     given = {"domain": domain.name, "algo": algo, **asdict(opts)}

@@ -5,6 +5,8 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
     tb/seed_<s>/      TensorBoard events, one run per seed (tags ``charts/``, ``hrl/<subtask>/``,
                       ``losses/<subtask>/``, ``perf/``; hyperparameters once as text)
     progress.csv      long format, one row per (step, seed, metric): step,seed,metric,value
+    eval_episodes.csv every greedy evaluation episode: step, seed, episode, return, length,
+                      success, truncated, start (its reset observation), the root's decisions
     <metric>.png      mean and 95% interval over seeds of each curve metric
     summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
     checkpoint.pt     the latest checkpoint (when checkpointing is on)
@@ -61,8 +63,11 @@ class RunLogger:
         self.seeds = list(seeds)
         self.csv_path = self.run_dir / "progress.csv"
         hparams = self._record_hparams(hparams, resumed_at)
-        if resumed_at is not None and self.csv_path.exists():
-            _drop_rows_after(self.csv_path, resumed_at)
+        self.episodes_path = self.run_dir / "eval_episodes.csv"
+        if resumed_at is not None:
+            for path in (self.csv_path, self.episodes_path):
+                if path.exists():
+                    _drop_rows_after(path, resumed_at)
         if not self.csv_path.exists():
             self.csv_path.write_text("step,seed,metric,value\n")
         self.writers = []
@@ -103,6 +108,35 @@ class RunLogger:
         with open(self.csv_path, "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerows(rows)
 
+    def log_episodes(self, step: int, records, node_names: Sequence[str]) -> None:
+        """Append one evaluation's episodes (``Trainer.evaluate_episodes``) to the CSV.
+
+        ``eval_episodes.csv`` gets the start's fields and the root's decisions by name.
+        """
+        new = not self.episodes_path.exists()
+        rows = []
+        for r in range(records.batch_size[0]):
+            n = int(records["n_decisions"][r])
+            names = [node_names[int(k)] for k in records["decisions"][r, :n]]
+            rows.append(
+                (
+                    step,
+                    int(records["seed"][r]),
+                    int(records["episode"][r]),
+                    f"{float(records['return'][r]):.6g}",
+                    int(records["length"][r]),
+                    int(records["success"][r]),
+                    int(records["truncated"][r]),
+                    fields_text(records["start"][r]),
+                    " ".join(names) + (" ..." if n > len(names) else ""),
+                )
+            )
+        with open(self.episodes_path, "a", newline="") as f:
+            writer = csv.writer(f, lineterminator="\n")
+            if new:
+                writer.writerow(EPISODE_COLUMNS)
+            writer.writerows(rows)
+
     def close(self) -> None:
         """Flush TensorBoard files."""
         for w in self.writers:
@@ -114,6 +148,48 @@ class RunLogger:
         path = self.run_dir / "summary.json"
         path.write_text(json.dumps(summary, indent=2, default=_json_default))
         return path
+
+
+EPISODE_COLUMNS = (
+    "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions"
+)  # fmt: skip
+
+
+def read_episodes(run_dir: str | Path, step: int | None = None) -> list[dict]:
+    """The episodes of a run folder's latest evaluation (or the one at ``step``), worst first.
+
+    Read from ``eval_episodes.csv``, numbers parsed.
+    """
+    with open(Path(run_dir) / "eval_episodes.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return []
+    at = max(int(r["step"]) for r in rows) if step is None else step
+    out = []
+    for r in rows:
+        if int(r["step"]) != at:
+            continue
+        out.append(
+            {
+                **r,
+                **{k: int(r[k]) for k in ("step", "seed", "episode", "length")},
+                "return": float(r["return"]),
+                "success": r["success"] == "1",
+                "truncated": r["truncated"] == "1",
+            }
+        )
+    return sorted(out, key=lambda r: (r["return"], r["seed"], r["episode"]))
+
+
+def fields_text(td) -> str:
+    """``k=v`` for every field of one observation (floats with 3 significant digits)."""
+    parts = []
+    for key, value in sorted(td.items(include_nested=True, leaves_only=True)):
+        name = key if isinstance(key, str) else ".".join(key)
+        flat = value.flatten().tolist()
+        text = ",".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in flat)
+        parts.append(f"{name}={text}")
+    return " ".join(parts)
 
 
 def _drop_rows_after(csv_path: Path, step: int) -> None:

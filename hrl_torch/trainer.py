@@ -148,6 +148,7 @@ class Trainer:
         #: what a checkpoint records of the run (``hrl_torch.experiment.run_config``)
         self.run_config: dict | None = None
         self._last_success: list[float] = []  # the latest evaluation's details
+        self.last_eval_records: TensorDict | None = None  # its episodes (evaluate_episodes)
         self._last_steps: list[float] = []
 
     # ------------------------------------------------------------------ stepping
@@ -267,38 +268,76 @@ class Trainer:
     def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Greedy episodes on ``eval_env``: mean return and success rate per learner ``[P]``.
 
-        (The mean episode length per learner is kept in ``last_eval_steps``.)
+        (The mean episode length per learner is kept in ``last_eval_steps``, every episode in
+        ``last_eval_records``: see ``evaluate_episodes``.)
+        """
+        if self.evaluator is not None:  # continuing tasks: greedy throughput, no episodes
+            self.last_eval_steps = torch.full((self.P,), float("nan"))
+            self.last_eval_records = None
+            return self.evaluator.evaluate(self)
+        records = self.evaluate_episodes()
+        self.last_eval_records = records
+        n = self.eval_env.envs_per_learner
+        self.last_eval_steps = records["length"].view(-1, n).mean(1)
+        success = records["success"].float().view(-1, n).mean(1)
+        return records["return"].view(-1, n).mean(1), success
+
+    def evaluate_episodes(self) -> TensorDict:
+        """Play one greedy episode per ``eval_env`` row; one record per episode (on the CPU).
 
         Every evaluation plays the same episodes (the eval env's and the tie-breaking random
         streams restart), so evaluation is a function of the tables alone; with one eval seed
         for all learners (as ``run_experiment`` sets up) every learner meets the same episodes.
+
+        Returns a TensorDict ``[P * eval_episodes]`` (learner ``p``'s episodes are rows
+        ``p * n .. p * n + n - 1``): ``learner``, ``seed``, ``episode`` (the same index is the
+        same start for every learner), ``return``, ``length`` (steps until the episode ended or
+        ``eval_max_steps``), ``success``, ``truncated`` (the env's time limit or
+        ``eval_max_steps`` ended it), ``start`` (the reset observation) and the root's decisions:
+        ``decisions [.., MAX_DECISIONS]`` (the root's children in the order it invoked them,
+        node indices, -1 after the last; the first ``MAX_DECISIONS`` only) and ``n_decisions``.
         """
-        if self.evaluator is not None:  # continuing tasks: greedy throughput, no episodes
-            self.last_eval_steps = torch.full((self.P,), float("nan"))
-            return self.evaluator.evaluate(self)
         env, cfg = self.eval_env, self.config
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
         agent = self.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
-        action = agent.start(env.reset())
-        dev = env.device
-        ret = torch.zeros(env.batch_size, device=dev)
-        success = torch.zeros(env.batch_size, dtype=torch.bool, device=dev)
-        finished = torch.zeros(env.batch_size, dtype=torch.bool, device=dev)
-        length = torch.zeros(env.batch_size, device=dev)
+        start = env.reset()
+        action = agent.start(start)
+        dev, b = env.device, env.batch_size
+        ret = torch.zeros(b, device=dev)
+        success = torch.zeros(b, dtype=torch.bool, device=dev)
+        truncated = torch.zeros(b, dtype=torch.bool, device=dev)
+        finished = torch.zeros(b, dtype=torch.bool, device=dev)
+        length = torch.zeros(b, device=dev)
+        decisions = _RootDecisions(agent.executor, self.graph, b, dev)
+        decisions.add(finished)
         for _ in range(cfg.eval_max_steps):
             td = env.step(action)
             ret += td["reward"] * ~finished
             length += (~finished).float()
             ended = td["terminated"] | td["truncated"]
             success |= _succeeded(td, cfg.success_key) & ~finished
+            truncated |= td["truncated"] & ~td["terminated"] & ~finished
             finished |= ended
             if bool(finished.all()):
                 break
             action = agent.step(td)
+            decisions.add(finished)
         n = env.envs_per_learner
-        self.last_eval_steps = length.view(-1, n).mean(1).cpu()
-        return ret.view(-1, n).mean(1).cpu(), success.float().view(-1, n).mean(1).cpu()
+        row = torch.arange(b)
+        fields = {
+            "learner": row // n,
+            "seed": torch.tensor(self.env.seeds).repeat_interleave(n),
+            "episode": row % n,
+            "return": ret.cpu(),
+            "length": length.cpu(),
+            "success": success.cpu(),
+            "truncated": (truncated | ~finished).cpu(),
+            "start": start.exclude(*_STEP_FIELDS).cpu(),
+            "decisions": decisions.nodes.cpu(),
+            "n_decisions": decisions.count.cpu(),
+        }
+        return TensorDict(fields, batch_size=[b])
 
     def make_agent(self, env, stream: str, exploration=None, **options) -> HierarchicalAgent:
         """An agent over ``env``'s rows (a ``MultiAgentAgent`` for a multi-agent env).
@@ -343,6 +382,8 @@ class Trainer:
         start = time.perf_counter()
         mean, success = self.evaluate()
         self.eval_seconds = time.perf_counter() - start  # the cost of one evaluation
+        if self.logger and self.last_eval_records is not None:
+            self.logger.log_episodes(self.step, self.last_eval_records, self.graph.names)
         values = mean.tolist()
         self._last_success = success.tolist()
         self._last_steps = self.last_eval_steps.tolist()
@@ -519,6 +560,35 @@ class _StopOnSignal:
 
     def __exit__(self, *exc) -> None:
         self._restore()
+
+
+_STEP_FIELDS = ("reward", "duration", "terminated", "truncated", "is_init")
+#: root decisions kept per evaluation episode
+MAX_DECISIONS = 32
+
+
+class _RootDecisions:
+    """The children the root invokes in each row, in order (the first ``MAX_DECISIONS``)."""
+
+    def __init__(self, executor, graph: TaskGraph, batch_size: int, device) -> None:
+        self.executor, self.graph = executor, graph
+        self.nodes = torch.full((batch_size, MAX_DECISIONS), -1, dtype=torch.long, device=device)
+        self.count = torch.zeros(batch_size, dtype=torch.long, device=device)
+        # multi-agent executors have a row per agent: no root decisions per episode there
+        self.on = executor.batch_size == batch_size and executor.depth > 1
+
+    def add(self, finished: torch.Tensor) -> None:
+        """After ``act``: record the root's new child in the rows still playing."""
+        if not self.on:
+            return
+        new = self.executor.invoked[:, 1] & ~finished
+        child = self.graph.inst_node[self.executor.stack.inst[:, 1].clamp_min(0)]
+        slot = self.count.clamp_max(MAX_DECISIONS - 1)[:, None]
+        keep = new & (self.count < MAX_DECISIONS)
+        self.nodes.scatter_(
+            1, slot, torch.where(keep, child, self.nodes.gather(1, slot)[:, 0])[:, None]
+        )
+        self.count += new.long()
 
 
 def _succeeded(td, key: str) -> torch.Tensor:

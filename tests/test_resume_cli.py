@@ -38,9 +38,11 @@ def the_run(out) -> Path:
 
 
 def logged(run_dir) -> list[tuple]:
-    """progress.csv's rows, timings (``perf/``) left out, in order."""
+    """progress.csv's rows, timings (``perf/``) left out, then eval_episodes.csv's, in order."""
     with open(run_dir / "progress.csv", newline="") as f:
-        return [tuple(r) for r in csv.reader(f) if not r[2].startswith("perf/")]
+        rows = [tuple(r) for r in csv.reader(f) if not r[2].startswith("perf/")]
+    with open(run_dir / "eval_episodes.csv", newline="") as f:
+        return rows + [tuple(r) for r in csv.reader(f)]
 
 
 def tables(run_dir) -> dict:
@@ -151,7 +153,8 @@ def test_a_crash_between_checkpoints_logs_no_step_twice(tmp_path, straight, monk
     run_dir = the_run(tmp_path)
     ckpt_step = load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["step"]
     assert ckpt_step == 404  # checkpoints at 4, 204, 404 (the clock moves E = 4 per step)
-    assert max(int(r[0]) for r in logged(run_dir)[1:]) > ckpt_step  # rows logged after it
+    steps = [int(r[0]) for r in logged(run_dir) if r[0] != "step"]
+    assert max(steps) > ckpt_step  # rows logged after it
 
     monkeypatch.setattr(Trainer, "train_step", step)
     assert resume(run_dir) == 0
