@@ -118,6 +118,11 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument(
         "--collector", action="store_true", help="step through a TorchRL Collector's frames"
     )
+    train.add_argument(
+        "--check-leaf-rewards",
+        action="store_true",
+        help="warn when one abstract state of a primitive sees different rewards",
+    )
     train.add_argument("--no-progress", action="store_true")
     train.add_argument("--no-tensorboard", action="store_true")
     evaluate = sub.add_parser(
@@ -270,7 +275,11 @@ def _train_options(args: argparse.Namespace):
         first, n = args.seed_offset or 0, args.seeds or 5
         given["seeds"] = list(range(first, first + n))
     given = {k: v for k, v in given.items() if v is not None}
-    display = {"progress": not args.no_progress, "tensorboard": not args.no_tensorboard}
+    display = {
+        "progress": not args.no_progress,
+        "tensorboard": not args.no_tensorboard,
+        "check_leaf_rewards": args.check_leaf_rewards,
+    }
     try:
         state = load_checkpoint(args.resume) if args.resume else None
         if state is not None and "run" in state:

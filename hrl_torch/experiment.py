@@ -131,6 +131,8 @@ class RunOptions:
             so its schedules are the same functions of the absolute step.
         check_env: before anything is written, run ``hrl_torch.envcheck.check_env`` on a small
             env of the domain (two rows, 32 random steps; the training env is not touched).
+        check_leaf_rewards: warn while training when one abstract state of a primitive sees
+            different rewards (``TrainConfig.check_leaf_rewards``).
     """
 
     seeds: Sequence[int] = (0,)
@@ -149,6 +151,7 @@ class RunOptions:
     collector: bool = False
     schedule_steps: int | None = None
     check_env: bool = True
+    check_leaf_rewards: bool = False
 
 
 #: what a checkpoint records of its run, besides the domain and algorithm
@@ -189,6 +192,8 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         if getattr(opts, k) is not None
     }
     config = replace(spec.train, progress=opts.progress, **changes)
+    if opts.check_leaf_rewards:
+        config.check_leaf_rewards = True
     schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
     n_envs = opts.envs_per_learner or spec.envs_per_learner

@@ -11,6 +11,7 @@ import copy
 import signal
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
@@ -24,6 +25,7 @@ from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration, Greedy
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
+from hrl_torch.monitor import LeafRewardMonitor
 from hrl_torch.multiagent import MultiAgentAgent, MultiAgentConfig, agent_rng
 from hrl_torch.rng import BatchRNG
 from hrl_torch.runlog import RunLogger
@@ -45,6 +47,8 @@ class TrainConfig:
         success_key: observation field that marks a successful episode end (``terminated``
             by default; e.g. ``success`` where some terminations are failures; ``"!name"``:
             the termination is a success where the field ``name`` is False).
+        check_leaf_rewards: warn when one abstract state of a primitive sees different rewards
+            (``hrl_torch.monitor.LeafRewardMonitor``; single-agent training only).
     """
 
     steps: int = 50_000
@@ -56,6 +60,7 @@ class TrainConfig:
     checkpoint_every: int = 0
     progress: bool = True
     success_key: str = "terminated"
+    check_leaf_rewards: bool = False
 
 
 @dataclass
@@ -144,6 +149,11 @@ class Trainer:
         self.first_hit: list[int | None] = [None] * self.P
         # env steps each learner really took (rows being auto-reset take none)
         self.real_steps = torch.zeros(self.P, dtype=torch.float64, device=env.device)
+        self.leaf_monitor = None
+        if self.config.check_leaf_rewards:
+            if self.n_agents is not None:
+                raise ValueError("check_leaf_rewards is for single-agent training")
+            self.leaf_monitor = LeafRewardMonitor(graph, self.P, device=env.device)
         self._next = {"log": 0, "eval": self.config.eval_every, "ckpt": 0}
         #: what a checkpoint records of the run (``hrl_torch.experiment.run_config``)
         self.run_config: dict | None = None
@@ -176,6 +186,8 @@ class Trainer:
         td, batch = self._collected_step() if self.collector else self._direct_step()
         if self.agent.learn:
             self.agent.update(batch)
+        if self.leaf_monitor is not None and batch is not None:
+            self.leaf_monitor.observe(batch, self.rows)
         self._episodes.add(td)
         self.real_steps.index_add_(0, self.rows, (~td["is_init"]).double())
         if self.evaluator is not None:  # continuing tasks: training throughput
@@ -229,6 +241,7 @@ class Trainer:
                 bar.update(self.E)
                 self._after_step(cfg, run_dir)
         bar.close()
+        self._warn_leaf_rewards()
         final, success = [float("nan")] * self.P, [float("nan")] * self.P
         steps = [float("nan")] * self.P
         if self.eval_env is not None and stop.signal is None:
@@ -406,7 +419,14 @@ class Trainer:
         """
         return counts.view(self.P, -1, *counts.shape[1:]).sum(1)
 
+    def _warn_leaf_rewards(self) -> None:
+        """Warn about primitives whose abstract states merge different rewards (if checked)."""
+        if self.leaf_monitor is not None:
+            for line in self.leaf_monitor.new_violations():
+                warnings.warn(line, stacklevel=3)
+
     def _log_training(self) -> None:
+        self._warn_leaf_rewards()
         extra = self.evaluator.flush() if self.evaluator is not None else {}
         if not self.logger:
             return
