@@ -106,11 +106,21 @@ class ExecutorConfig:
             what it called) and carry on; aborted children produce no learning target.
         record_visited: keep the last ``L`` states visited during each child for all-states
             updating (0 = off).
+        on_bad_step: an env step with a non-finite reward or a non-finite or negative
+            duration: ``"raise"`` a ``BadStepError``, or ``"skip"`` it: nothing is learned from
+            it, every subtask running in that row is aborted (no learning target), the row
+            starts again at the root in its new state, and ``skipped_steps`` counts it per
+            learner.
     """
 
     max_subtask_steps: int = 10_000
     on_timeout: Literal["raise", "abort"] = "raise"
     record_visited: int = 0
+    on_bad_step: Literal["raise", "skip"] = "raise"
+
+
+class BadStepError(ValueError):
+    """An env step with a non-finite reward or a non-finite or negative duration."""
 
 
 class HierarchicalExecutor:
@@ -164,6 +174,8 @@ class HierarchicalExecutor:
         #: ``interrupt(popped [B, D], ended_own [B, D]) -> [B, D]``: more levels to cut
         self.interrupt = None
         self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
+        #: env steps skipped per learner (``on_bad_step="skip"``)
+        self.skipped_steps = torch.zeros(self.n_learners, device=device)
         #: levels ``[B, D]`` whose node was invoked by the last ``act``
         self.invoked = torch.zeros_like(self.stack.inst, dtype=torch.bool)
 
@@ -300,14 +312,14 @@ class HierarchicalExecutor:
         With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
         """
         g, f = self.graph, self.stack.tensors()
-        reward, tau = step_td["reward"], step_td["duration"]
-        _check_step(reward, tau)
-        real = ~step_td["is_init"]
-        env_term = step_td["terminated"] & real
-        env_trunc = step_td["truncated"] & real & ~env_term
         # multi-agent rows (``hrl_torch.multiagent``): an agent that does not act at this step
         # is in the middle of its primitive action; its stack waits untouched
         self._acting = step_td.get("acting", None)
+        step_td, bad = self._bad_steps(step_td, f)  # rows whose step is skipped, or None
+        reward, tau = step_td["reward"], step_td["duration"]
+        real = ~step_td["is_init"]
+        env_term = step_td["terminated"] & real
+        env_trunc = step_td["truncated"] & real & ~env_term
         stepped = real if self._acting is None else real & self._acting
         inst = f["inst"]
         active = (inst >= 0) & stepped[:, None]
@@ -320,16 +332,21 @@ class HierarchicalExecutor:
         ended_own = own | is_prim | (active & env_term[:, None])
         timeout = self._timeouts(f, active, is_prim, node)
         cut = ended_own | timeout | (active & env_trunc[:, None])
+        if bad is not None:  # a skipped step aborts the row's whole stack
+            cut = cut | (active & bad[:, None])
         if self.interrupt is not None:  # e.g. the tau_any scheme (hrl_torch.multiagent)
             cut = cut | (self.interrupt((cut.cumsum(1) > 0) & active, ended_own) & active)
         popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
         emit = active & ~is_prim & _shift_left(popped)
+        taught = stepped  # rows whose primitive step is a transition
+        if bad is not None:  # ... and teaches nothing
+            emit, taught = emit & ~bad[:, None], stepped & ~bad
         terminal = (own | env_term[:, None]) & active & ~is_prim
 
         batch = None
         if transitions:
             batch = self._transitions(
-                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, stepped
+                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, taught
             )
         if self.config.record_visited:
             self._record_visits(f, active & ~is_prim & ~_shift_left(popped), ctx, node)
@@ -341,6 +358,36 @@ class HierarchicalExecutor:
         f["done"] = env_term | env_trunc
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         return batch
+
+    def _bad_steps(self, step_td: TensorDict, f: dict):
+        """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN).
+
+        A bad step raises ``BadStepError`` naming the row and the primitive that ran, or (with
+        ``on_bad_step="skip"``) is counted: returns ``(step_td, bad [B])`` with a copy of
+        ``step_td`` whose bad rows have reward and duration 0; ``(step_td, None)`` if no step
+        is bad.
+        """
+        reward, tau = step_td["reward"], step_td["duration"]
+        ok = (reward + tau) * 0 + tau >= 0  # False for inf/NaN in either and for d < 0
+        if bool(ok.all()):
+            return step_td, None
+        bad = ~ok & ~step_td["is_init"]
+        row = int((~ok).nonzero()[0])
+        if self.config.on_bad_step == "raise":
+            top = int(f["top"][row])
+            inst = int(f["inst"][row, top]) if top >= 0 else -1
+            ran = f" while {self.graph.instance_path(inst)!r} ran" if inst >= 0 else ""
+            raise BadStepError(
+                f"env row {row} returned reward {float(reward[row])} and duration "
+                f"{float(tau[row])}{ran}: rewards must be finite, durations finite and >= 0 "
+                "(ExecutorConfig(on_bad_step='skip') skips such steps and counts them)"
+            )
+        self.skipped_steps.index_add_(0, self.learner, bad.float())
+        zero = torch.zeros((), device=reward.device)
+        step_td = step_td.clone(False)
+        step_td["reward"] = torch.where(ok, reward, zero)
+        step_td["duration"] = torch.where(ok, tau, zero)
+        return step_td, bad
 
     def _accumulate(self, f: dict, active, node, reward, tau, ctx: StepContext) -> None:
         """Add the step's reward and time to the current child of every active level."""
@@ -478,6 +525,7 @@ class HierarchicalExecutor:
             "stats": self.stats.state_dict(),
             "action": self._action.clone(),
             "obs": {} if self._obs is None else self._obs.to_dict(),
+            "skipped_steps": self.skipped_steps.clone(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -486,6 +534,8 @@ class HierarchicalExecutor:
         self.stats.load_state_dict(state["stats"])
         self.stack = stack
         self._action = state["action"].to(self.device).clone()
+        skipped = state.get("skipped_steps", torch.zeros_like(self.skipped_steps))
+        self.skipped_steps = skipped.to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
 
@@ -495,18 +545,6 @@ def _as_choice(out) -> Choice:
     if isinstance(out, Choice):
         return out
     return Choice(out[0], out[1], out[2] if len(out) > 2 else None)
-
-
-def _check_step(reward: torch.Tensor, duration: torch.Tensor) -> None:
-    """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN)."""
-    ok = (reward + duration) * 0 + duration >= 0  # False for inf/NaN in either and for d < 0
-    if not bool(ok.all()):
-        row = int((~ok).nonzero()[0])
-        r, t = float(reward[row]), float(duration[row])
-        raise ValueError(
-            f"env row {row} returned reward {r} and duration {t}: rewards must be finite, "
-            "durations finite and >= 0"
-        )
 
 
 def _raise_stuck(g: TaskGraph, stuck: torch.Tensor, node: torch.Tensor) -> None:

@@ -145,6 +145,8 @@ class Trainer:
         self._episodes = _EpisodeTracker(
             env.batch_size, self.P, self.E, self.config.success_key, env.device
         )
+        # skipped bad steps (``ExecutorConfig.on_bad_step``) add nothing to episode returns
+        self._episodes.finite_only = self.executor_config.on_bad_step == "skip"
         self.curve: list[tuple[int, list[float]]] = []
         self.first_hit: list[int | None] = [None] * self.P
         # env steps each learner really took (rows being auto-reset take none)
@@ -324,9 +326,13 @@ class Trainer:
         length = torch.zeros(b, device=dev)
         decisions = _RootDecisions(agent.executor, self.graph, b, dev)
         decisions.add(finished)
+        finite_only = self.executor_config.on_bad_step == "skip"
         for _ in range(cfg.eval_max_steps):
             td = env.step(action)
-            ret += td["reward"] * ~finished
+            reward = td["reward"]
+            if finite_only:  # skipped bad steps add nothing
+                reward = torch.where(reward.isfinite(), reward, 0.0)
+            ret += reward * ~finished
             length += (~finished).float()
             ended = td["terminated"] | td["truncated"]
             success |= _succeeded(td, cfg.success_key) & ~finished
@@ -449,6 +455,8 @@ class Trainer:
             scalars[f"hrl/{name}/mean_duration"] = _ratio(durations[:, k], ends[:, k])
             scalars[f"hrl/{name}/success"] = _ratio(successes[:, k], ends[:, k])
             scalars[f"losses/{name}/td_error"] = _ratio(td_abs[:, k], td_count[:, k])
+        if self.executor_config.on_bad_step == "skip":  # bad env steps skipped so far
+            scalars["charts/skipped_steps"] = self._per_seed(self.executor.skipped_steps).tolist()
         com = self.multiagent.communication if self.multiagent else None
         if com is not None:  # COM-Cooperative HRL: the share of U_l choices made communicating
             asked = calls[:, g.index[com.com]]
@@ -631,6 +639,7 @@ class _EpisodeTracker:
         self, batch_size: int, n_learners: int, envs_per_learner: int, success_key: str, device
     ) -> None:
         self.success_key = success_key
+        self.finite_only = False
         self.rows = torch.arange(batch_size, device=device) // envs_per_learner
         self.n_learners = n_learners
         self.ret = torch.zeros(batch_size, device=device)
@@ -639,7 +648,10 @@ class _EpisodeTracker:
 
     def add(self, td) -> None:
         real = ~td["is_init"]
-        self.ret += td["reward"] * real
+        reward = td["reward"]
+        if self.finite_only:
+            reward = torch.where(reward.isfinite(), reward, 0.0)
+        self.ret += reward * real
         self.length += real
         ended = ((td["terminated"] | td["truncated"]) & real).float()
         values = torch.stack(
