@@ -5,6 +5,7 @@
     hrl-torch train taxi --algo maxq-q --seeds 10 --backend gymnasium
     hrl-torch train --resume runs/taxi__maxq-q__.../checkpoint.pt [--steps N]
     hrl-torch eval runs/taxi__maxq-q__... [--episodes N] [--worst K]
+    hrl-torch sweep taxi --algo maxq-q --grid alpha=0.1,0.5 --seeds 5   (pip install -e ".[sweep]")
 
 Domains: the repository's ``agents/`` package (not in the wheel: run from the repository root,
 or pass ``--project DIR``), installed plugins (entry-point group ``hrl_torch.domains``) and
@@ -15,12 +16,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import os
 import signal
 import sys
 
 import torch
+
+from hrl_torch.argtypes import finite, int_at_least
+from hrl_torch.sweep import add_sweep_parser
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
@@ -59,29 +62,6 @@ class _Parser(argparse.ArgumentParser):
         raise UserError(message)
 
 
-def _int_at_least(low: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
-        return value
-
-    return parse
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
-    return value
-
-
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hrl-torch", description=__doc__.split("\n")[0])
     parser.add_argument("--project", default=".", help="repository root holding agents/ and envs/")
@@ -102,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     train.add_argument("domain", nargs="?", default=None)
     train.add_argument("--algo", default=None)
-    positive, natural = _int_at_least(1), _int_at_least(0)
+    positive, natural = int_at_least(1), int_at_least(0)
     train.add_argument("--seeds", type=positive, default=None, help="number of seeds (default 5)")
     train.add_argument("--seed-offset", type=natural, default=None, help="first seed (default 0)")
     train.add_argument("--backend", default=None, help="torch (batched, default) or gymnasium")
@@ -110,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--steps", type=positive, default=None, help="env steps per seed")
     train.add_argument("--eval-every", type=natural, default=None, help="0: only at the end")
     train.add_argument("--eval-episodes", type=natural, default=None, help="0: no evaluation")
-    train.add_argument("--threshold", type=_finite, default=None)
+    train.add_argument("--threshold", type=finite, default=None)
     train.add_argument("--checkpoint-every", type=natural, default=None, help="0: at the end")
     train.add_argument("--out", default=None, help="parent folder of run folders (default runs)")
     train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
@@ -125,6 +105,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     train.add_argument("--no-progress", action="store_true")
     train.add_argument("--no-tensorboard", action="store_true")
+    sweep = add_sweep_parser(sub)
     evaluate = sub.add_parser(
         "eval", help="re-evaluate a run's checkpoint greedily and show its worst episodes"
     )
@@ -133,7 +114,7 @@ def _parser() -> argparse.ArgumentParser:
         "--episodes", type=positive, default=None, help="per seed (default: the run's)"
     )
     evaluate.add_argument("--worst", type=natural, default=10, help="episodes to show")
-    for p in (parser, train, evaluate):
+    for p in (parser, train, evaluate, sweep):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return parser
 
@@ -190,6 +171,13 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.command == "eval":
         return _evaluate(args)
+    if args.command == "sweep":
+        from hrl_torch.sweep import run_sweep_command
+
+        try:
+            return run_sweep_command(args)
+        except ValueError as err:
+            raise UserError(err.args[0] if err.args else str(err)) from err
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written
     if opts is None:
         return 0  # a finished run: nothing to do

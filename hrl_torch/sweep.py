@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hrl_torch.argtypes import int_at_least
 from hrl_torch.experiment import AlgoSpec, DomainSpec, RunOptions, check_domain_env, run_experiment
 from hrl_torch.runlog import mean_ci95
 
@@ -268,16 +269,16 @@ def run_sweep(
     metric = metric or default_metric(domain)
     request = {"domain": domain_name, "algo": algo, "grid": grid, "seeds": seeds, "steps": steps}
     request = json.loads(json.dumps({**request, "metric": metric}))
-    sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
-    _check_folder(sweep_dir, request, resume)
     configs = configurations(grid)
-    for config in configs:  # every key and value is tried before Ray starts
+    for config in configs:  # every key and value is tried before Ray starts or a file is written
         spec = with_overrides(domain.algos[algo], config)
         try:
             spec.make_learner(spec.make_graph(), 1)
         except (TypeError, ValueError) as err:
             raise ValueError(f"configuration {label(config)}: {err}") from None
     check_domain_env(domain, algo)
+    sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
+    _check_folder(sweep_dir, request, resume)
 
     ray, tune = _import_ray()
     started = not ray.is_initialized()
@@ -526,6 +527,7 @@ def write_table(rows: list[dict], keys: list[str], metric: str, sweep_dir: Path)
 # ---------------------------------------------------------------------- command line
 def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``hrl-torch sweep`` to ``subparsers``; ``run_sweep_command`` runs it."""
+    positive = int_at_least(1)
     p = subparsers.add_parser(
         "sweep",
         help="run a grid of hyperparameters as Ray Tune trials, one population run each",
@@ -541,23 +543,13 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
         metavar="NAME=V1,V2",
         help="values of one hyperparameter (repeatable; the sweep runs their product)",
     )
-    p.add_argument("--seeds", type=_positive, default=5, help="seeds per trial (default 5)")
-    p.add_argument("--steps", type=_positive, default=None, help="env steps per seed")
+    p.add_argument("--seeds", type=positive, default=5, help="seeds per trial (default 5)")
+    p.add_argument("--steps", type=positive, default=None, help="env steps per seed")
     p.add_argument("--address", default=None, help="an existing Ray cluster (default: local)")
     p.add_argument("--out", default="runs", help="parent of the sweep folder (default runs)")
     p.add_argument("--name", default=None, help="sweep folder (default DOMAIN__ALGO__sweep)")
     p.add_argument("--resume", action="store_true", help="continue the sweep in its folder")
     return p
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:

@@ -74,3 +74,14 @@ def test_a_failed_start_removes_the_run_folder_it_made(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="could not be built"):
         main([*BASE, "--out", str(tmp_path)])
     assert not list(tmp_path.iterdir())
+
+
+def test_sweep_errors_are_one_line_before_ray_starts(tmp_path, capsys):
+    args = ["sweep", "taxi", "--algo", "maxq-q", "--out", str(tmp_path), "--grid"]
+    assert main([*args, "alpha"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hrl-torch: error: ") and "'alpha'" in err[0]
+    assert main([*args, "nope=1,2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope" in err[0]
+    assert not list(tmp_path.iterdir())
