@@ -13,6 +13,8 @@ _REGISTRATIONS = {
     "hrl/SmallAGV-v0": "envs.agv_small:gymnasium_env",
     "hrl/AGV-v0": "envs.agv:gymnasium_env",
     "hrl/AGVContinuous-v0": "envs.agv:gymnasium_env_continuous",
+    "hrl/FourRooms-v0": "envs.four_rooms:gymnasium_env",
+    "hrl/KeyDoor-v0": "envs.key_door:gymnasium_env",
 }
 
 

@@ -1,0 +1,190 @@
+"""Four rooms (``envs.four_rooms``): room-to-room navigation subtasks under a goal-seeking root.
+
+Task graph::
+
+    Root ─┬─ ToHallway(h), h = 0..3 ── North, South, East, West
+          └─ ToGoal(g),    g = A..D ── North, South, East, West     g bound to the episode's goal
+
+``ToHallway(h)`` walks to hallway ``h``; the root may start it in the two rooms ``h`` joins
+and in the hallways that share a room with ``h``. ``ToGoal(g)`` walks to goal ``g``; the root
+may start it in the goal's room and its two hallways, and only for the episode's goal. Every
+way between rooms passes a hallway, so these subtasks lose nothing: the hierarchically optimal
+policy is the shortest path.
+
+State abstractions:
+
+=============  ==========================================  ======
+node           relevant variables                          states
+=============  ==========================================  ======
+Root           cell, goal (which hallway is nearer depends  416
+               on the cell)
+ToHallway(h)   cell                                        104
+ToGoal(g)      cell                                        104
+moves          none (always -1)                            1
+=============  ==========================================  ======
+
+The root sees everything flat Q-learning sees, so the hierarchy's gain is the sharing of the
+navigation subtasks across goals, not a smaller root (docs/defaults.md measures what that buys).
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from agents.taxi import flat_graph
+from envs.four_rooms import (
+    GOALS,
+    HALLWAY_ROOMS,
+    HALLWAYS,
+    N_ACTIONS,
+    N_CELLS,
+    N_GOALS,
+    N_REGIONS,
+    N_STATES,
+    FourRoomsEnv,
+    cell_index,
+    decode,
+)
+from envs.grid import optimal_values
+from hrl_torch.executor import ExecutorConfig
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners import MaxQLearner, SMDPQLearner
+from hrl_torch.trainer import TrainConfig
+
+MOVES = ["North", "South", "East", "West"]
+
+
+def _initiation_tables() -> tuple[torch.Tensor, torch.Tensor]:
+    """``[8 regions, 4]`` bool: where ``ToHallway(h)`` and where ``ToGoal(g)`` may start."""
+    rooms = [set(pair) for pair in HALLWAY_ROOMS]
+    to_hallway = torch.zeros(N_REGIONS, len(HALLWAYS), dtype=torch.bool)
+    to_goal = torch.zeros(N_REGIONS, N_GOALS, dtype=torch.bool)
+    for room in range(4):  # goal g lies in room g
+        to_hallway[room] = torch.tensor([room in r for r in rooms])
+        to_goal[room, room] = True
+    for h, joined in enumerate(rooms):  # standing in hallway h
+        to_hallway[4 + h] = torch.tensor([k != h and bool(joined & r) for k, r in enumerate(rooms)])
+        to_goal[4 + h] = torch.tensor([g in joined for g in range(N_GOALS)])
+    return to_hallway, to_goal
+
+
+TO_HALLWAY, TO_GOAL = _initiation_tables()
+
+
+class GoTo(Subtask):
+    """Walk to one cell; abstraction: the cell. ``allowed [8]``: regions it may start in."""
+
+    def __init__(self, name: str, target: tuple[int, int], allowed: torch.Tensor, goal=None):
+        super().__init__(name, MOVES, n_states=N_CELLS)
+        self.register_buffer("target", torch.tensor(cell_index(*target)), persistent=False)
+        self.register_buffer("allowed", allowed.clone(), persistent=False)
+        self.goal = goal
+
+    def abstract(self, obs: TensorDict) -> torch.Tensor:
+        return obs["cell"]
+
+    def terminated(self, obs: TensorDict) -> torch.Tensor:
+        return obs["cell"] == self.target
+
+    def initiable(self, obs: TensorDict) -> torch.Tensor:
+        ok = self.allowed[obs["region"]]
+        return ok if self.goal is None else ok & (obs["goal"] == self.goal)
+
+
+def tabulated(graph: TaskGraph) -> TaskGraph:
+    """``graph`` with its context computed once for all 416 states."""
+    states = torch.arange(N_STATES)
+    graph.tabulate(TensorDict(decode(states), batch_size=[N_STATES]))
+    return graph
+
+
+def four_rooms_hierarchy() -> TaskGraph:
+    """Root -> ToHallway(h), ToGoal(g) -> moves (see the module docstring)."""
+    hallways = [GoTo(f"ToHallway_{h}", HALLWAYS[h], TO_HALLWAY[:, h]) for h in range(4)]
+    goals = [GoTo(f"ToGoal_{'ABCD'[g]}", GOALS[g], TO_GOAL[:, g], goal=g) for g in range(4)]
+    root = Subtask(
+        "Root",
+        [n.name for n in (*hallways, *goals)],
+        n_states=N_STATES,
+        abstract=lambda o: o["observation"],
+    )
+    moves = [Primitive(name, k) for k, name in enumerate(MOVES)]
+    return tabulated(TaskGraph("Root", [root, *hallways, *goals, *moves], n_actions=N_ACTIONS))
+
+
+# ---------------------------------------------------------------------- experiments
+def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> FourRoomsEnv:
+    """Four rooms for ``seeds`` (100-step limit)."""
+    if backend != "torch":
+        raise ValueError(f"unknown backend {backend!r}")
+    return FourRoomsEnv(seeds, envs_per_learner)
+
+
+EVAL_SEED = 1_000_003
+EVAL_EPISODES = 100
+
+
+def optimal_eval_return(seed: int = EVAL_SEED, episodes: int = EVAL_EPISODES) -> float:
+    """The optimal policy's mean return on the evaluation episodes (shortest paths)."""
+    from envs.four_rooms import transition_tables
+
+    value = optimal_values(*transition_tables()[:3])
+    return float(value[FourRoomsEnv([seed], episodes).reset()["observation"]].mean())
+
+
+OPTIMAL = optimal_eval_return()
+#: near-optimal: within a quarter step per episode of the shortest paths
+THRESHOLD = OPTIMAL - 0.25
+
+
+def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
+
+
+# The best settings of docs/defaults.md (scripts/defaults_table.py, 100,000 steps, 5 seeds).
+# MAXQ-Q: zero initial values (5/5 seeds reached the threshold, 4/5 were above it at the end;
+# with -20 none reached it: the root's choice at a start cell is rarely tried again, and a
+# pessimistic value keeps an untried hallway unattractive), all-states updating on.
+# Flat Q: pessimistic -20 (4/5 seeds, median 42,000 steps; zero: 2/5).
+ALPHA = 0.5
+MAXQ_INIT = 0.0
+Q_INIT = -20.0
+VISITED = 32  # states of a child kept for all-states updating
+
+
+def _spec(make_graph, make_learner, description: str, **options) -> AlgoSpec:
+    steps = 100_000
+    return AlgoSpec(
+        make_graph=make_graph,
+        make_learner=make_learner,
+        make_exploration=_epsilon,
+        train=TrainConfig(steps=steps, eval_every=steps // 20, threshold=THRESHOLD),
+        envs_per_learner=64,
+        description=description,
+        **options,
+    )
+
+
+DOMAIN = DomainSpec(
+    name="four-rooms",
+    description="four rooms (Sutton, Precup and Singh 1999), one of four goals per episode",
+    make_env=make_env,
+    eval_seed=EVAL_SEED,
+    reference={f"optimal {OPTIMAL:.2f}": OPTIMAL, f"threshold {THRESHOLD:.2f}": THRESHOLD},
+    algos={
+        "maxq-q": _spec(
+            four_rooms_hierarchy,
+            lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=MAXQ_INIT),
+            "MAXQ-Q (all-states updating) on Root -> ToHallway(h), ToGoal(g) -> moves",
+            executor=ExecutorConfig(record_visited=VISITED),
+        ),
+        "q": _spec(
+            lambda: tabulated(flat_graph(N_STATES, N_ACTIONS)),
+            lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=Q_INIT),
+            "flat Q-learning over the 416 states",
+        ),
+    },
+)

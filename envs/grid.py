@@ -1,0 +1,96 @@
+"""Helpers shared by the small gridworlds (``envs.four_rooms``, ``envs.key_door``).
+
+``TableEnv`` is a deterministic finite env stepped by lookups in its transition tables.
+
+A layout is a tuple of equal-length strings; ``#`` is a wall, every other character a free
+cell. Free cells are numbered row-major. Moves are 0 north, 1 south, 2 east, 3 west; a move
+into a wall or off the map leaves the agent where it is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from hrl_torch.env import BatchedEnv
+
+NORTH, SOUTH, EAST, WEST = range(4)
+MOVES = ((-1, 0), (1, 0), (0, 1), (0, -1))
+
+
+def free_cells(layout: tuple[str, ...]) -> tuple[tuple[int, int], ...]:
+    """``(row, col)`` of every free cell, row-major (the cell index is the position here)."""
+    return tuple((r, c) for r, line in enumerate(layout) for c, ch in enumerate(line) if ch != "#")
+
+
+def move_table(layout: tuple[str, ...]) -> torch.Tensor:
+    """``[n_cells, 4]``: the cell each move leads to (the same cell into a wall)."""
+    cells = free_cells(layout)
+    index = {rc: k for k, rc in enumerate(cells)}
+    table = torch.zeros(len(cells), 4, dtype=torch.long)
+    for k, (r, c) in enumerate(cells):
+        for a, (dr, dc) in enumerate(MOVES):
+            table[k, a] = index.get((r + dr, c + dc), k)
+    return table
+
+
+def optimal_values(
+    next_state: torch.Tensor, reward: torch.Tensor, terminated: torch.Tensor
+) -> torch.Tensor:
+    """``[S]``: the optimal undiscounted return from every state of a deterministic model.
+
+    Value iteration on ``next_state``, ``reward``, ``terminated`` ``[S, A]`` tables until no
+    value changes (every state must reach a termination; returns are finite).
+    """
+    value = torch.zeros(next_state.shape[0], dtype=torch.float64)
+    reward, done = reward.double(), terminated
+    for _ in range(10 * next_state.shape[0]):
+        q = reward + torch.where(done, 0.0, value[next_state])
+        new = q.amax(1)
+        if torch.equal(new, value):
+            return value
+        value = new
+    raise RuntimeError("value iteration did not converge (a state that never terminates?)")
+
+
+class TableEnv(BatchedEnv):
+    """A deterministic finite env given by its tables; subclasses add ``_observe``.
+
+    Args:
+        tables: ``(next_state, reward, terminated)`` ``[S, A]`` and the start states ``[K]``
+            (a reset draws one uniformly).
+        seeds: one seed per learner.
+        envs_per_learner: envs per learner ``E``.
+        max_episode_steps: time limit.
+        device: where the state lives.
+    """
+
+    state_keys = ("state",)
+
+    def __init__(
+        self,
+        tables: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+        seeds: Sequence[int],
+        envs_per_learner: int,
+        max_episode_steps: int | None,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        next_state, reward, terminated, starts = tables
+        super().__init__(seeds, envs_per_learner, next_state.shape[1], max_episode_steps, device)
+        self.next_state = next_state.to(self.device)
+        self.reward_table = reward.to(self.device)
+        self.terminal_table = terminated.to(self.device)
+        self.starts = starts.to(self.device)
+        self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
+
+    def _reset_rows(self, mask: torch.Tensor) -> None:
+        fresh = self.starts.index_select(0, self.rng.integers(len(self.starts)))  # every row
+        self.state = torch.where(mask, fresh, self.state)
+
+    def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        flat = self.state * self.n_actions + action  # index_select on flat tables: fast on CPU
+        reward = self.reward_table.view(-1).index_select(0, flat)
+        terminated = self.terminal_table.view(-1).index_select(0, flat)
+        self.state = self.next_state.view(-1).index_select(0, flat)
+        return reward, torch.ones_like(reward), terminated
