@@ -96,28 +96,29 @@ def _epsilon(config: TrainConfig) -> EpsilonGreedy:
     return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 2))
 
 
-# the optimal greedy return over the evaluation episodes is about -0.5
-TRAIN = TrainConfig(steps=3_000, eval_every=500, eval_episodes=20, eval_max_steps=60, threshold=-1)
+def algo(make_graph, learner_class, description: str) -> AlgoSpec:
+    """One algorithm: its graph and learner; the budget and exploration are shared."""
+    return AlgoSpec(
+        make_graph=make_graph,
+        make_learner=lambda g, n: learner_class(g, n, alpha=0.5, gamma=1.0),
+        make_exploration=_epsilon,
+        # the optimal greedy return over the evaluation episodes is about -0.5
+        train=TrainConfig(steps=3_000, eval_every=500, eval_episodes=20, threshold=-1),
+        envs_per_learner=8,
+        description=description,
+    )
+
+
 DOMAIN = DomainSpec(
     name="corridor",
     make_env=make_env,
     description="fetch at the left end, deliver at the right end (an hrl-torch plugin)",
     algos={
-        "maxq-q": AlgoSpec(
-            make_graph=corridor_hierarchy,
-            make_learner=lambda g, n: MaxQLearner(g, n, alpha=0.5, gamma=1.0),
-            make_exploration=_epsilon,
-            train=TRAIN,
-            envs_per_learner=8,
-            description="MAXQ-Q over Root -> {Fetch, Deliver} -> {Left, Right}",
+        "maxq-q": algo(
+            corridor_hierarchy,
+            MaxQLearner,
+            "MAXQ-Q over Root -> {Fetch, Deliver} -> {Left, Right}",
         ),
-        "q": AlgoSpec(
-            make_graph=flat_graph,
-            make_learner=lambda g, n: SMDPQLearner(g, n, alpha=0.5, gamma=1.0),
-            make_exploration=_epsilon,
-            train=TRAIN,
-            envs_per_learner=8,
-            description="flat Q-learning over (position, carrying)",
-        ),
+        "q": algo(flat_graph, SMDPQLearner, "flat Q-learning over (position, carrying)"),
     },
 )
