@@ -32,6 +32,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
+from agents.gridworlds import EVAL_SEED, env_factory, grid_algo, optimal_eval_return
 from agents.taxi import flat_graph
 from envs.four_rooms import (
     GOALS,
@@ -46,13 +47,10 @@ from envs.four_rooms import (
     cell_index,
     decode,
 )
-from envs.grid import optimal_values
 from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.experiment import DomainSpec
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.trainer import TrainConfig
 
 MOVES = ["North", "South", "East", "West"]
 
@@ -116,32 +114,10 @@ def four_rooms_hierarchy() -> TaskGraph:
 
 
 # ---------------------------------------------------------------------- experiments
-def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> FourRoomsEnv:
-    """Four rooms for ``seeds`` (100-step limit)."""
-    if backend != "torch":
-        raise ValueError(f"unknown backend {backend!r}")
-    return FourRoomsEnv(seeds, envs_per_learner)
-
-
-EVAL_SEED = 1_000_003
-EVAL_EPISODES = 100
-
-
-def optimal_eval_return(seed: int = EVAL_SEED, episodes: int = EVAL_EPISODES) -> float:
-    """The optimal policy's mean return on the evaluation episodes (shortest paths)."""
-    from envs.four_rooms import transition_tables
-
-    value = optimal_values(*transition_tables()[:3])
-    return float(value[FourRoomsEnv([seed], episodes).reset()["observation"]].mean())
-
-
-OPTIMAL = optimal_eval_return()
+make_env = env_factory(FourRoomsEnv)
+OPTIMAL = optimal_eval_return(FourRoomsEnv)
 #: near-optimal: within a quarter step per episode of the shortest paths
 THRESHOLD = OPTIMAL - 0.25
-
-
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
 
 
 # The best settings of docs/defaults.md (scripts/defaults_table.py, 100,000 steps, 5 seeds).
@@ -155,19 +131,6 @@ Q_INIT = -20.0
 VISITED = 32  # states of a child kept for all-states updating
 
 
-def _spec(make_graph, make_learner, description: str, **options) -> AlgoSpec:
-    steps = 100_000
-    return AlgoSpec(
-        make_graph=make_graph,
-        make_learner=make_learner,
-        make_exploration=_epsilon,
-        train=TrainConfig(steps=steps, eval_every=steps // 20, threshold=THRESHOLD),
-        envs_per_learner=64,
-        description=description,
-        **options,
-    )
-
-
 DOMAIN = DomainSpec(
     name="four-rooms",
     description="four rooms (Sutton, Precup and Singh 1999), one of four goals per episode",
@@ -175,16 +138,18 @@ DOMAIN = DomainSpec(
     eval_seed=EVAL_SEED,
     reference={f"optimal {OPTIMAL:.2f}": OPTIMAL, f"threshold {THRESHOLD:.2f}": THRESHOLD},
     algos={
-        "maxq-q": _spec(
+        "maxq-q": grid_algo(
             four_rooms_hierarchy,
             lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=MAXQ_INIT),
             "MAXQ-Q (all-states updating) on Root -> ToHallway(h), ToGoal(g) -> moves",
+            THRESHOLD,
             executor=ExecutorConfig(record_visited=VISITED),
         ),
-        "q": _spec(
+        "q": grid_algo(
             lambda: tabulated(flat_graph(N_STATES, N_ACTIONS)),
             lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=Q_INIT),
             "flat Q-learning over the 416 states",
+            THRESHOLD,
         ),
     },
 )

@@ -55,34 +55,49 @@ def optimal_values(
 
 
 class TableEnv(BatchedEnv):
-    """A deterministic finite env given by its tables; subclasses add ``_observe``.
+    """A deterministic finite env given by its tables (taxi, four rooms, key and door).
+
+    A subclass sets ``observation_sizes``, ``transition_tables`` (``() -> (next_state,
+    reward, terminated)`` ``[S, A]`` and the start states ``[K]``; a reset draws one
+    uniformly), ``decode`` (``state [B] -> observation fields``) and ``time_limit``.
 
     Args:
-        tables: ``(next_state, reward, terminated)`` ``[S, A]`` and the start states ``[K]``
-            (a reset draws one uniformly).
         seeds: one seed per learner.
-        envs_per_learner: envs per learner ``E``.
-        max_episode_steps: time limit.
+        envs_per_learner: envs per learner ``E``; the batch is ``len(seeds) * E``.
+        max_episode_steps: time limit (-1, the default: the class's ``time_limit``).
         device: where the state lives.
     """
 
     state_keys = ("state",)
+    time_limit: int | None = None
+    transition_tables = None  # set by subclasses (a staticmethod)
+    decode = None  # set by subclasses (a staticmethod)
 
     def __init__(
         self,
-        tables: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
-        seeds: Sequence[int],
-        envs_per_learner: int,
-        max_episode_steps: int | None,
+        seeds: Sequence[int] = (0,),
+        envs_per_learner: int = 1,
+        max_episode_steps: int | None = -1,
         device: torch.device | str = "cpu",
     ) -> None:
-        next_state, reward, terminated, starts = tables
-        super().__init__(seeds, envs_per_learner, next_state.shape[1], max_episode_steps, device)
+        next_state, reward, terminated, starts = self.transition_tables()
+        limit = self.time_limit if max_episode_steps == -1 else max_episode_steps
+        super().__init__(seeds, envs_per_learner, next_state.shape[1], limit, device)
         self.next_state = next_state.to(self.device)
         self.reward_table = reward.to(self.device)
         self.terminal_table = terminated.to(self.device)
         self.starts = starts.to(self.device)
         self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
+
+    @classmethod
+    def gymnasium(cls, render_mode: str | None = None):
+        """One row of this env as a ``gymnasium.Env`` (``hrl_torch.adapters``)."""
+        from hrl_torch.adapters import BatchedToGymnasium
+
+        return BatchedToGymnasium(lambda seeds, n: cls(seeds, n), render_mode=render_mode)
+
+    def _observe(self) -> dict[str, torch.Tensor]:
+        return self.decode(self.state)
 
     def _reset_rows(self, mask: torch.Tensor) -> None:
         fresh = self.starts.index_select(0, self.rng.integers(len(self.starts)))  # every row

@@ -41,7 +41,6 @@ Terminated on reaching the goal; truncated after 200 steps.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from functools import lru_cache
 
 import torch
@@ -137,11 +136,7 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
 class KeyDoorEnv(TableEnv):
     """Torch-batched key and door (see the module docstring).
 
-    Args:
-        seeds: one seed per learner.
-        envs_per_learner: envs per learner ``E``.
-        max_episode_steps: time limit.
-        device: where the state lives.
+    Arguments as ``envs.grid.TableEnv`` (its time limit: ``MAX_EPISODE_STEPS``).
     """
 
     observation_sizes = {
@@ -153,21 +148,11 @@ class KeyDoorEnv(TableEnv):
         "col": len(LAYOUT[0]),
     }
 
-    def __init__(
-        self,
-        seeds: Sequence[int] = (0,),
-        envs_per_learner: int = 1,
-        max_episode_steps: int | None = MAX_EPISODE_STEPS,
-        device: torch.device | str = "cpu",
-    ) -> None:
-        super().__init__(transition_tables(), seeds, envs_per_learner, max_episode_steps, device)
-
-    def _observe(self) -> dict[str, torch.Tensor]:
-        return decode(self.state)
+    time_limit = MAX_EPISODE_STEPS
+    transition_tables = staticmethod(transition_tables)
+    decode = staticmethod(decode)
 
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/KeyDoor-v0")``: one row of ``KeyDoorEnv`` as a gymnasium env."""
-    from hrl_torch.adapters import BatchedToGymnasium
-
-    return BatchedToGymnasium(lambda seeds, n: KeyDoorEnv(seeds, n), render_mode=render_mode)
+    return KeyDoorEnv.gymnasium(render_mode)

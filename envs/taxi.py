@@ -38,12 +38,11 @@ Terminated on delivery; truncated after 200 steps (gymnasium's ``TimeLimit``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from functools import lru_cache
 
 import torch
 
-from hrl_torch.env import BatchedEnv
+from envs.grid import TableEnv
 
 MAP = (
     "+---------+",
@@ -127,17 +126,12 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
     }
 
 
-class TaxiEnv(BatchedEnv):
+class TaxiEnv(TableEnv):
     """Torch-batched ``Taxi-v4`` (see the module docstring).
 
-    Args:
-        seeds: one seed per learner.
-        envs_per_learner: envs per learner ``E``; the batch is ``len(seeds) * E``.
-        max_episode_steps: time limit, 200 as in ``gymnasium.make("Taxi-v4")``.
-        device: where the state lives.
+    Arguments as ``envs.grid.TableEnv`` (its time limit: ``MAX_EPISODE_STEPS``).
     """
 
-    state_keys = ("state",)
     observation_sizes = {
         "observation": N_STATES,
         "taxi_row": 5,
@@ -147,34 +141,9 @@ class TaxiEnv(BatchedEnv):
         "destination": 4,
     }
 
-    def __init__(
-        self,
-        seeds: Sequence[int] = (0,),
-        envs_per_learner: int = 1,
-        max_episode_steps: int | None = MAX_EPISODE_STEPS,
-        device: torch.device | str = "cpu",
-    ) -> None:
-        super().__init__(seeds, envs_per_learner, N_ACTIONS, max_episode_steps, device)
-        next_state, reward, terminated, starts = transition_tables()
-        self.next_state = next_state.to(self.device)
-        self.reward_table = reward.to(self.device)
-        self.terminal_table = terminated.to(self.device)
-        self.starts = starts.to(self.device)
-        self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
-
-    def _reset_rows(self, mask: torch.Tensor) -> None:
-        fresh = self.starts.index_select(0, self.rng.integers(len(self.starts)))
-        self.state = torch.where(mask, fresh, self.state)
-
-    def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        flat = self.state * N_ACTIONS + action  # index_select on flat tables: fast on CPU
-        reward = self.reward_table.view(-1).index_select(0, flat)
-        terminated = self.terminal_table.view(-1).index_select(0, flat)
-        self.state = self.next_state.view(-1).index_select(0, flat)
-        return reward, torch.ones_like(reward), terminated
-
-    def _observe(self) -> dict[str, torch.Tensor]:
-        return decode(self.state)
+    time_limit = MAX_EPISODE_STEPS
+    transition_tables = staticmethod(transition_tables)
+    decode = staticmethod(decode)
 
 
 def gymnasium_env(render_mode: str | None = None):
