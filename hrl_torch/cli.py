@@ -285,8 +285,21 @@ def _train_options(args: argparse.Namespace):
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
         raise UserError(err.args[0] if err.args else str(err)) from err
     given.setdefault("seeds", list(range(5)))
-    opts = RunOptions(**given, **display, out=args.out or "runs", resume=args.resume)
+    out = args.out or "runs"
+    _check_writable_folder(out, "--out")
+    opts = RunOptions(**given, **display, out=out, resume=args.resume)
     return domain, args.algo, opts
+
+
+def _check_writable_folder(path: str, option: str) -> None:
+    """``path`` is (or can be made as) a folder this process may write in."""
+    existing = os.path.abspath(path)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise UserError(f"{option} {path}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UserError(f"{option} {path}: {existing} is not writable")
 
 
 def _continuation(args, state: dict, given: dict, display: dict):
@@ -297,6 +310,7 @@ def _continuation(args, state: dict, given: dict, display: dict):
     run = state["run"]
     if args.out is not None:
         raise UserError("--out does not apply to --resume: a run continues in its own folder")
+    _check_writable_folder(os.path.dirname(os.path.abspath(args.resume)), "--resume")
     named = {"domain": args.domain, "algo": args.algo}
     opts = continue_options(
         args.resume, run, **{k: v for k, v in named.items() if v is not None}, **given, **display

@@ -1,5 +1,7 @@
 """Every user error of the CLI is one line on stderr and exit code 2, and nothing is written."""
 
+import os
+
 import pytest
 
 from hrl_torch.cli import main
@@ -85,3 +87,22 @@ def test_sweep_errors_are_one_line_before_ray_starts(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0]
     assert not list(tmp_path.iterdir())
+
+
+def test_an_out_that_is_a_file_or_not_writable(tmp_path, capsys, monkeypatch):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert main([*BASE, "--out", str(afile / "runs")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"hrl-torch: error: --out {afile / 'runs'}: {afile} is a file, not a folder"
+    )
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: p != str(locked) and real_access(p, mode))
+    assert main([*BASE, "--out", str(locked / "runs")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"hrl-torch: error: --out {locked / 'runs'}: {locked} is not writable"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "locked"]
+    assert not list(locked.iterdir())
