@@ -69,6 +69,7 @@ class TableEnv(BatchedEnv):
     """
 
     state_keys = ("state",)
+    subset_safe = True  # the row's state is ``state`` alone
     time_limit: int | None = None
     transition_tables = None  # set by subclasses (a staticmethod)
     decode = None  # set by subclasses (a staticmethod)

@@ -110,9 +110,39 @@ class HierarchicalAgent:
             score_width=0 if evaluate else getattr(learner, "score_width", 0),
         )
         self.rows = self.executor.learner
+        self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}
         self.clock = 0
         self.ctx: StepContext | None = None
         self.batch: TensorDict | None = None
+
+    def subset(self, rows: torch.Tensor) -> HierarchicalAgent:
+        """A non-learning agent over the rows ``rows`` only, in their current state.
+
+        Their Task-Stacks, last actions and random streams carry over, so each row goes on
+        exactly as here (greedy evaluation stops stepping finished rows with it). Value-based
+        learners only (``ValuePolicy``); ``None`` for others.
+        """
+        if type(self.policy) is not ValuePolicy or self.learn:
+            return None
+        sub = HierarchicalAgent(
+            self.graph,
+            self.learner,
+            self._made["exploration"],
+            self.policy.rng.subset(rows),
+            self.envs_per_learner,
+            self._made["config"],
+            learn=False,
+            evaluate=self._made["evaluate"],
+            transitions=False,
+            rows=self.rows[rows],
+        )
+        old, new = self.executor, sub.executor
+        new.stack = old.stack[rows]
+        new._action = old._action[rows]
+        new._obs = None if old._obs is None else old._obs[rows]
+        new.invoked = old.invoked[rows]
+        sub.clock = self.clock
+        return sub
 
     @property
     def envs_per_learner(self) -> int:

@@ -15,6 +15,7 @@ observation for its updates and the initial observation one step later.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import torch
@@ -153,6 +154,25 @@ class BatchedEnv:
         self.rng = self.rng.to(device)
         self.device = device
         return self
+
+    #: ``subset`` keeps every row's behaviour: all per-row state is in ``state_keys`` (and
+    #: ``elapsed``, ``done``, ``rng``). A class sets True once that holds (greedy evaluation
+    #: then stops stepping finished rows); ``tests/test_eval_compaction.py`` checks it
+    subset_safe: bool = False
+
+    def subset(self, rows: torch.Tensor) -> BatchedEnv:
+        """An env of the rows ``rows`` only, each in its current state with its own stream.
+
+        What greedy evaluation uses to stop stepping finished rows. ``n_learners`` and
+        ``envs_per_learner`` lose their meaning in the copy (its rows are not whole learners).
+        """
+        sub = copy.copy(self)
+        for key in self.state_keys:
+            setattr(sub, key, getattr(self, key)[rows])
+        sub.elapsed, sub.done = self.elapsed[rows], self.done[rows]
+        sub.rng = self.rng.subset(rows)
+        sub.batch_size = int(rows.shape[0])
+        return sub
 
     def learner_of_row(self) -> torch.Tensor:
         """Learner index of every row: ``[B]``."""

@@ -9,6 +9,7 @@ every device.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import torch
@@ -118,6 +119,12 @@ class BatchRNG:
         u1 = self.uniform(extra).clamp_min(1e-7)
         u2 = self.uniform(extra)
         return torch.sqrt(-2.0 * torch.log(u1)) * torch.cos(2.0 * torch.pi * u2)
+
+    def subset(self, rows: torch.Tensor) -> BatchRNG:
+        """The streams of ``rows`` only, at the same counter: each row draws what it drew here."""
+        sub = copy.copy(self)
+        sub._row_key = self._row_key[rows]
+        return sub
 
     def to(self, device: torch.device | str) -> BatchRNG:
         """The same streams, drawn on ``device`` (the draws do not depend on the device)."""

@@ -318,43 +318,51 @@ class Trainer:
         agent = self.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
         start = env.reset()
         action = agent.start(start)
-        dev, b = env.device, env.batch_size
-        ret = torch.zeros(b, device=dev)
-        success = torch.zeros(b, dtype=torch.bool, device=dev)
-        truncated = torch.zeros(b, dtype=torch.bool, device=dev)
-        finished = torch.zeros(b, dtype=torch.bool, device=dev)
-        length = torch.zeros(b, device=dev)
-        decisions = _RootDecisions(agent.executor, self.graph, b, dev)
-        decisions.add(finished)
+        episodes = _Episodes(env.batch_size, env.device)
+        decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
         finite_only = self.executor_config.on_bad_step == "skip"
+        compactable = getattr(env, "subset_safe", False)
+        now = episodes.now
         for _ in range(cfg.eval_max_steps):
+            if decisions_on:
+                _record_root_decisions(agent.executor, self.graph, now)
             td = env.step(action)
             reward = td["reward"]
             if finite_only:  # skipped bad steps add nothing
                 reward = torch.where(reward.isfinite(), reward, 0.0)
-            ret += reward * ~finished
-            length += (~finished).float()
-            ended = td["terminated"] | td["truncated"]
-            success |= _succeeded(td, cfg.success_key) & ~finished
-            truncated |= td["truncated"] & ~td["terminated"] & ~finished
-            finished |= ended
-            if bool(finished.all()):
+            playing = ~now["finished"]
+            now["return"] += reward * playing
+            now["length"] += playing.float()
+            now["success"] |= _succeeded(td, cfg.success_key) & playing
+            now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
+            now["finished"] |= td["terminated"] | td["truncated"]
+            alive = int((~now["finished"]).sum())
+            if alive == 0:
                 break
+            if compactable and alive <= env.batch_size // 2 and env.batch_size >= 32:
+                keep = (~now["finished"]).nonzero().squeeze(1)
+                smaller = agent.subset(keep)  # step only the rows still playing from now on
+                if smaller is not None:
+                    agent, env, td = smaller, env.subset(keep), td[keep]
+                    now = episodes.compact(keep)
             action = agent.step(td)
-            decisions.add(finished)
-        n = env.envs_per_learner
+        if decisions_on:
+            _record_root_decisions(agent.executor, self.graph, now)
+        out = episodes.result()
+        n = self.eval_env.envs_per_learner
+        b = self.eval_env.batch_size
         row = torch.arange(b)
         fields = {
             "learner": row // n,
             "seed": torch.tensor(self.env.seeds).repeat_interleave(n),
             "episode": row % n,
-            "return": ret.cpu(),
-            "length": length.cpu(),
-            "success": success.cpu(),
-            "truncated": (truncated | ~finished).cpu(),
+            "return": out["return"].cpu(),
+            "length": out["length"].cpu(),
+            "success": out["success"].cpu(),
+            "truncated": (out["truncated"] | ~out["finished"]).cpu(),
             "start": start.exclude(*_STEP_FIELDS).cpu(),
-            "decisions": decisions.nodes.cpu(),
-            "n_decisions": decisions.count.cpu(),
+            "decisions": out["decisions"].cpu(),
+            "n_decisions": out["n_decisions"].cpu(),
         }
         return TensorDict(fields, batch_size=[b])
 
@@ -595,28 +603,59 @@ _STEP_FIELDS = ("reward", "duration", "terminated", "truncated", "is_init")
 MAX_DECISIONS = 32
 
 
-class _RootDecisions:
-    """The children the root invokes in each row, in order (the first ``MAX_DECISIONS``)."""
+class _Episodes:
+    """The running results of greedy evaluation episodes, one row each.
 
-    def __init__(self, executor, graph: TaskGraph, batch_size: int, device) -> None:
-        self.executor, self.graph = executor, graph
-        self.nodes = torch.full((batch_size, MAX_DECISIONS), -1, dtype=torch.long, device=device)
-        self.count = torch.zeros(batch_size, dtype=torch.long, device=device)
-        # multi-agent executors have a row per agent: no root decisions per episode there
-        self.on = executor.batch_size == batch_size and executor.depth > 1
+    ``now`` holds the rows still stepped (``live``: their indices among all rows); ``compact``
+    keeps only some of them, after saving every row's results so far.
+    """
 
-    def add(self, finished: torch.Tensor) -> None:
-        """After ``act``: record the root's new child in the rows still playing."""
-        if not self.on:
-            return
-        new = self.executor.invoked[:, 1] & ~finished
-        child = self.graph.inst_node[self.executor.stack.inst[:, 1].clamp_min(0)]
-        slot = self.count.clamp_max(MAX_DECISIONS - 1)[:, None]
-        keep = new & (self.count < MAX_DECISIONS)
-        self.nodes.scatter_(
-            1, slot, torch.where(keep, child, self.nodes.gather(1, slot)[:, 0])[:, None]
-        )
-        self.count += new.long()
+    def __init__(self, batch_size: int, device) -> None:
+        def zeros(dtype=torch.float32, *shape):
+            return torch.zeros(batch_size, *shape, dtype=dtype, device=device)
+
+        self.now = {
+            "return": zeros(),
+            "length": zeros(),
+            "success": zeros(torch.bool),
+            "truncated": zeros(torch.bool),
+            "finished": zeros(torch.bool),
+            "decisions": zeros(torch.long, MAX_DECISIONS) - 1,
+            "n_decisions": zeros(torch.long),
+        }
+        self.all = {k: v.clone() for k, v in self.now.items()}
+        self.live = torch.arange(batch_size, device=device)
+
+    def _save(self) -> None:
+        for k, v in self.now.items():
+            self.all[k][self.live] = v
+
+    def compact(self, keep: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Step only ``keep`` (indices into the current rows) from now on; the new ``now``."""
+        self._save()
+        self.now = {k: v[keep] for k, v in self.now.items()}
+        self.live = self.live[keep]
+        return self.now
+
+    def result(self) -> dict[str, torch.Tensor]:
+        """Every row's results."""
+        self._save()
+        return self.all
+
+
+def _record_root_decisions(executor, graph: TaskGraph, now: dict) -> None:
+    """After ``act``: the root's new child in each row still playing.
+
+    The first ``MAX_DECISIONS`` are kept, in order.
+    """
+    new = executor.invoked[:, 1] & ~now["finished"]
+    child = graph.inst_node[executor.stack.inst[:, 1].clamp_min(0)]
+    count = now["n_decisions"]
+    slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
+    keep = new & (count < MAX_DECISIONS)
+    kept = torch.where(keep, child, now["decisions"].gather(1, slot)[:, 0])
+    now["decisions"].scatter_(1, slot, kept[:, None])
+    count += new.long()
 
 
 def _succeeded(td, key: str) -> torch.Tensor:
