@@ -395,11 +395,16 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
 
 
 def _given(domain: DomainSpec, algo: str, opts: RunOptions) -> dict:
-    """``opts`` as ``continue_options`` changes: every field that is set, ``resume`` aside."""
-    given = {"domain": domain.name, "algo": algo, **asdict(opts)}
-    given["seeds"] = list(opts.seeds)
-    del given["resume"]
-    return {k: v for k, v in given.items() if v is not None}
+    """``opts`` as ``continue_options`` changes: the fields set to other than their defaults.
+
+    So ``RunOptions(resume=path)`` continues the recorded run as it was.
+    """
+    default = asdict(RunOptions())
+    given = {k: v for k, v in asdict(opts).items() if v is not None and v != default[k]}
+    given.pop("resume", None)
+    if "seeds" in given:
+        given["seeds"] = list(opts.seeds)
+    return {"domain": domain.name, "algo": algo, **given}
 
 
 def format_summary(summary: dict) -> str:

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -244,3 +245,16 @@ def test_a_real_ctrl_c_on_the_command_line(tmp_path):
 
 def _text(path: Path) -> str:
     return path.read_text() if path.exists() else ""
+
+
+def test_the_library_resumes_from_the_checkpoint_alone(tmp_path):
+    from hrl_torch import registry
+
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    opts = RunOptions(resume=str(run_dir / "checkpoint.pt"), steps=800, progress=False)
+    again, summary = run_experiment(registry.get("taxi"), "maxq-q", opts)
+    assert again == run_dir and summary["seeds"] == [0, 1]
+    assert summary["env_steps_per_learner"] == 800 and summary["envs_per_learner"] == 4
+    with pytest.raises(ValueError, match=r"seeds \[5\] differs from the checkpoint's run"):
+        run_experiment(registry.get("taxi"), "maxq-q", replace(opts, seeds=[5]))
