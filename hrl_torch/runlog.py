@@ -46,7 +46,7 @@ class RunLogger:
         tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
         resumed_at: a resumed run's checkpoint step. ``hparams.json`` keeps the original
             settings and appends this resume to its ``"resumes"``; rows logged after the step
-            (by a run stopped between checkpoints) are dropped from ``progress.csv`` and
+            (by a run stopped between checkpoints) are dropped from the CSVs and
             purged from TensorBoard, so the continuation logs no step twice.
     """
 

@@ -570,8 +570,7 @@ class _StopOnSignal:
     """Within ``with``: the first SIGINT or SIGTERM is recorded, not raised.
 
     ``signal`` holds its name; the previous handlers come back at once, so a second signal
-    acts as usual.
-    Outside the main thread (where handlers cannot be set) nothing changes.
+    acts as usual. Outside the main thread (where handlers cannot be set) nothing changes.
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
