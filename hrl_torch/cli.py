@@ -148,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print("hrl-torch: interrupted", file=sys.stderr)
         return 128 + signal.SIGINT
+    except BrokenPipeError:  # ``hrl-torch list | head``: the reader left, nothing to report
+        sys.stdout = open(os.devnull, "w")  # no flush error when Python exits
+        return 0
 
 
 def _run(args: argparse.Namespace) -> int:
