@@ -5,9 +5,9 @@ Used by ``agents.four_rooms`` and ``agents.key_door``.
 
 from __future__ import annotations
 
+from agents.taxi import epsilon_first_third
 from envs.grid import TableEnv, optimal_values
 from hrl_torch.experiment import AlgoSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.trainer import TrainConfig
 
 EVAL_SEED = 1_000_003
@@ -34,10 +34,6 @@ def optimal_eval_return(
     return float(value[env_class([seed], episodes).reset()["observation"]].mean())
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
-
-
 def grid_algo(make_graph, make_learner, description: str, threshold: float, **options) -> AlgoSpec:
     """One algorithm of a gridworld.
 
@@ -46,7 +42,7 @@ def grid_algo(make_graph, make_learner, description: str, threshold: float, **op
     return AlgoSpec(
         make_graph=make_graph,
         make_learner=make_learner,
-        make_exploration=_epsilon,
+        make_exploration=epsilon_first_third,
         train=TrainConfig(steps=STEPS, eval_every=STEPS // 20, threshold=threshold),
         envs_per_learner=64,
         description=description,

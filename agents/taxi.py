@@ -147,7 +147,11 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch"):
     raise ValueError(f"unknown backend {backend!r}")
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
+def epsilon_first_third(config: TrainConfig) -> EpsilonGreedy:
+    """Epsilon-greedy from 1 to 0.05 over the first third of the budget.
+
+    Taxi's recipe, also used by taxi-fuel, the gridworlds and the toy-text envs.
+    """
     return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
 
 
@@ -168,7 +172,7 @@ DOMAIN = DomainSpec(
         "maxq-q": AlgoSpec(
             make_graph=taxi_hierarchy,
             make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=_epsilon,
+            make_exploration=epsilon_first_third,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
             description="MAXQ-Q (Dietterich 2000) on the MAXQ task graph",
@@ -176,7 +180,7 @@ DOMAIN = DomainSpec(
         "smdp-q": AlgoSpec(
             make_graph=taxi_hierarchy,
             make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=_epsilon,
+            make_exploration=epsilon_first_third,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
             description="SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph",
@@ -184,7 +188,7 @@ DOMAIN = DomainSpec(
         "q": AlgoSpec(
             make_graph=lambda: tabulated(flat_graph()),
             make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=_epsilon,
+            make_exploration=epsilon_first_third,
             train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
             envs_per_learner=256,
             description="flat Q-learning over the 500 states",

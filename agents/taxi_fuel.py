@@ -38,10 +38,17 @@ every subtask), ``maxq-q`` and flat ``q`` over the 6,500 states.
 
 from __future__ import annotations
 
-from agents.taxi import PESSIMISTIC_INIT, Navigate, flat_graph, get_and_put, taxi_primitives
+from agents.taxi import (
+    PESSIMISTIC_INIT,
+    Navigate,
+    epsilon_first_third,
+    flat_graph,
+    get_and_put,
+    taxi_primitives,
+)
 from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Greedy, Linear
+from hrl_torch.exploration import Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
@@ -93,10 +100,6 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> TaxiFuelEn
     return TaxiFuelEnv(seeds, envs_per_learner)
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
-
-
 #: HPGRL's step size (ours; the text gives none). The 256 rows of a learner add their updates;
 #: 0.02 and 0.05 plateaued far below 0.005 (docs/reproduction.md).
 HPGRL_ALPHA = 0.005
@@ -123,7 +126,7 @@ DOMAIN = DomainSpec(
         "maxq-q": AlgoSpec(
             make_graph=taxi_fuel_hierarchy,
             make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=_epsilon,
+            make_exploration=epsilon_first_third,
             train=TrainConfig(steps=1_000_000, eval_every=10_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="MAXQ-Q (Dietterich 2000) on the taxi-fuel graph",
@@ -131,7 +134,7 @@ DOMAIN = DomainSpec(
         "q": AlgoSpec(
             make_graph=flat_fuel_graph,
             make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=_epsilon,
+            make_exploration=epsilon_first_third,
             train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="flat Q-learning over the 6,500 states",

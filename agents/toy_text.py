@@ -19,9 +19,8 @@ of equal value, so these learners discount (``gamma`` 0.99). CliffWalking costs 
 
 from __future__ import annotations
 
-from agents.taxi import flat_graph
+from agents.taxi import epsilon_first_third, flat_graph
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.learners import SMDPQLearner
 from hrl_torch.trainer import TrainConfig
 
@@ -46,10 +45,6 @@ def _make_env(env_id: str, **kwargs):
     return make_env
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
-
-
 def _domain(name, env_id, *, n_states, gamma, init, optimal, steps, description, **kwargs):
     """One toy-text env as a domain with flat Q-learning; ``kwargs`` go to ``gymnasium.make``."""
     return DomainSpec(
@@ -62,7 +57,7 @@ def _domain(name, env_id, *, n_states, gamma, init, optimal, steps, description,
             "q": AlgoSpec(
                 make_graph=lambda: flat_graph(n_states, 4),
                 make_learner=lambda g, p: SMDPQLearner(g, p, ALPHA, gamma, init=init),
-                make_exploration=_epsilon,
+                make_exploration=epsilon_first_third,
                 train=TrainConfig(
                     steps=steps, eval_every=steps // 20, eval_episodes=10, threshold=optimal
                 ),
