@@ -143,10 +143,13 @@ class Trainer:
         self.action: torch.Tensor | None = None
         self.train_seconds = 0.0
         self._episodes = _EpisodeTracker(
-            env.batch_size, self.P, self.E, self.config.success_key, env.device
+            env.batch_size,
+            self.P,
+            self.E,
+            self.config.success_key,
+            env.device,
+            finite_only=self.executor_config.on_bad_step == "skip",
         )
-        # skipped bad steps (``ExecutorConfig.on_bad_step``) add nothing to episode returns
-        self._episodes.finite_only = self.executor_config.on_bad_step == "skip"
         self.curve: list[tuple[int, list[float]]] = []
         self.first_hit: list[int | None] = [None] * self.P
         # env steps each learner really took (rows being auto-reset take none)
@@ -318,53 +321,27 @@ class Trainer:
         agent = self.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
         start = env.reset()
         action = agent.start(start)
-        episodes = _Episodes(env.batch_size, env.device)
+        episodes = _EvalEpisodes(env.batch_size, env.device)
         decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
         finite_only = self.executor_config.on_bad_step == "skip"
         compactable = getattr(env, "subset_safe", False)
-        now = episodes.now
         for _ in range(cfg.eval_max_steps):
             if decisions_on:
-                _record_root_decisions(agent.executor, self.graph, now)
+                episodes.record_root_decisions(agent.executor, self.graph)
             td = env.step(action)
-            reward = td["reward"]
-            if finite_only:  # skipped bad steps add nothing
-                reward = torch.where(reward.isfinite(), reward, 0.0)
-            playing = ~now["finished"]
-            now["return"] += reward * playing
-            now["length"] += playing.float()
-            now["success"] |= _succeeded(td, cfg.success_key) & playing
-            now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
-            now["finished"] |= td["terminated"] | td["truncated"]
-            alive = int((~now["finished"]).sum())
+            alive = episodes.add(td, _counted_reward(td, finite_only), cfg.success_key)
             if alive == 0:
                 break
             if compactable and alive <= env.batch_size // 2 and env.batch_size >= 32:
-                keep = (~now["finished"]).nonzero().squeeze(1)
+                keep = (~episodes.now["finished"]).nonzero().squeeze(1)
                 smaller = agent.subset(keep)  # step only the rows still playing from now on
                 if smaller is not None:
                     agent, env, td = smaller, env.subset(keep), td[keep]
-                    now = episodes.compact(keep)
+                    episodes.compact(keep)
             action = agent.step(td)
         if decisions_on:
-            _record_root_decisions(agent.executor, self.graph, now)
-        out = episodes.result()
-        n = self.eval_env.envs_per_learner
-        b = self.eval_env.batch_size
-        row = torch.arange(b)
-        fields = {
-            "learner": row // n,
-            "seed": torch.tensor(self.env.seeds).repeat_interleave(n),
-            "episode": row % n,
-            "return": out["return"].cpu(),
-            "length": out["length"].cpu(),
-            "success": out["success"].cpu(),
-            "truncated": (out["truncated"] | ~out["finished"]).cpu(),
-            "start": start.exclude(*_STEP_FIELDS).cpu(),
-            "decisions": out["decisions"].cpu(),
-            "n_decisions": out["n_decisions"].cpu(),
-        }
-        return TensorDict(fields, batch_size=[b])
+            episodes.record_root_decisions(agent.executor, self.graph)
+        return episodes.records(start, self.env.seeds, self.eval_env.envs_per_learner)
 
     def make_agent(self, env, stream: str, exploration=None, **options) -> HierarchicalAgent:
         """An agent over ``env``'s rows (a ``MultiAgentAgent`` for a multi-agent env).
@@ -602,7 +579,7 @@ _STEP_FIELDS = ("reward", "duration", "terminated", "truncated", "is_init")
 MAX_DECISIONS = 32
 
 
-class _Episodes:
+class _EvalEpisodes:
     """The running results of greedy evaluation episodes, one row each.
 
     ``now`` holds the rows still stepped (``live``: their indices among all rows); ``compact``
@@ -629,32 +606,60 @@ class _Episodes:
         for k, v in self.now.items():
             self.all[k][self.live] = v
 
-    def compact(self, keep: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Step only ``keep`` (indices into the current rows) from now on; the new ``now``."""
+    def add(self, td: TensorDict, reward: torch.Tensor, success_key: str) -> int:
+        """Account one env step of the current rows; how many are still playing."""
+        now, playing = self.now, ~self.now["finished"]
+        now["return"] += reward * playing
+        now["length"] += playing.float()
+        now["success"] |= _succeeded(td, success_key) & playing
+        now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
+        now["finished"] |= td["terminated"] | td["truncated"]
+        return int((~now["finished"]).sum())
+
+    def record_root_decisions(self, executor, graph: TaskGraph) -> None:
+        """After ``act``: the root's new child in each row still playing.
+
+        The first ``MAX_DECISIONS`` are kept, in order.
+        """
+        now = self.now
+        new = executor.invoked[:, 1] & ~now["finished"]
+        child = graph.inst_node[executor.stack.inst[:, 1].clamp_min(0)]
+        count = now["n_decisions"]
+        slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
+        keep = new & (count < MAX_DECISIONS)
+        kept = torch.where(keep, child, now["decisions"].gather(1, slot)[:, 0])
+        now["decisions"].scatter_(1, slot, kept[:, None])
+        count += new.long()
+
+    def compact(self, keep: torch.Tensor) -> None:
+        """Step only ``keep`` (indices into the current rows) from now on."""
         self._save()
         self.now = {k: v[keep] for k, v in self.now.items()}
         self.live = self.live[keep]
-        return self.now
 
-    def result(self) -> dict[str, torch.Tensor]:
-        """Every row's results."""
+    def records(self, start: TensorDict, seeds, n: int) -> TensorDict:
+        """Every row's record (see ``Trainer.evaluate_episodes``); ``n`` episodes per seed."""
         self._save()
-        return self.all
+        out = {k: v.cpu() for k, v in self.all.items()}
+        row = torch.arange(out["return"].shape[0])
+        fields = {
+            "learner": row // n,
+            "seed": torch.tensor(seeds).repeat_interleave(n),
+            "episode": row % n,
+            **{k: out[k] for k in ("return", "length", "success", "decisions", "n_decisions")},
+            "truncated": out["truncated"] | ~out["finished"],
+            "start": start.exclude(*_STEP_FIELDS).cpu(),
+        }
+        return TensorDict(fields, batch_size=[row.shape[0]])
 
 
-def _record_root_decisions(executor, graph: TaskGraph, now: dict) -> None:
-    """After ``act``: the root's new child in each row still playing.
+def _counted_reward(td: TensorDict, finite_only: bool) -> torch.Tensor:
+    """The step's reward as returns count it.
 
-    The first ``MAX_DECISIONS`` are kept, in order.
+    With ``finite_only`` (``ExecutorConfig.on_bad_step="skip"``) a skipped bad step counts 0.
     """
-    new = executor.invoked[:, 1] & ~now["finished"]
-    child = graph.inst_node[executor.stack.inst[:, 1].clamp_min(0)]
-    count = now["n_decisions"]
-    slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
-    keep = new & (count < MAX_DECISIONS)
-    kept = torch.where(keep, child, now["decisions"].gather(1, slot)[:, 0])
-    now["decisions"].scatter_(1, slot, kept[:, None])
-    count += new.long()
+    reward = td["reward"]
+    return torch.where(reward.isfinite(), reward, 0.0) if finite_only else reward
 
 
 def _succeeded(td, key: str) -> torch.Tensor:
@@ -674,10 +679,16 @@ class _EpisodeTracker:
     """
 
     def __init__(
-        self, batch_size: int, n_learners: int, envs_per_learner: int, success_key: str, device
+        self,
+        batch_size: int,
+        n_learners: int,
+        envs_per_learner: int,
+        success_key: str,
+        device,
+        finite_only: bool = False,
     ) -> None:
         self.success_key = success_key
-        self.finite_only = False
+        self.finite_only = finite_only  # skipped bad steps add nothing to returns
         self.rows = torch.arange(batch_size, device=device) // envs_per_learner
         self.n_learners = n_learners
         self.ret = torch.zeros(batch_size, device=device)
@@ -686,10 +697,7 @@ class _EpisodeTracker:
 
     def add(self, td) -> None:
         real = ~td["is_init"]
-        reward = td["reward"]
-        if self.finite_only:
-            reward = torch.where(reward.isfinite(), reward, 0.0)
-        self.ret += reward * real
+        self.ret += _counted_reward(td, self.finite_only) * real
         self.length += real
         ended = ((td["terminated"] | td["truncated"]) & real).float()
         values = torch.stack(
