@@ -31,6 +31,11 @@ os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 class UserError(Exception):
     """A mistake in the command line: one line on stderr, exit code 2, nothing written."""
 
+    @classmethod
+    def of(cls, err: Exception) -> UserError:
+        """The library's error (a ``KeyError``, ``ValueError``, ...) as a user error."""
+        return cls(err.args[0] if err.args else str(err))
+
 
 def _load_domains(project: str, modules: list[str]) -> None:
     """Register the built-in domains (``agents`` under ``project``), plugins and ``modules``."""
@@ -180,7 +185,7 @@ def _run(args: argparse.Namespace) -> int:
         try:
             return run_sweep_command(args)
         except ValueError as err:
-            raise UserError(err.args[0] if err.args else str(err)) from err
+            raise UserError.of(err) from err
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written
     if opts is None:
         return 0  # a finished run: nothing to do
@@ -207,7 +212,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     try:
         trainer, records = evaluate_run(args.run_dir, args.episodes)
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
-        raise UserError(err.args[0] if err.args else str(err)) from err
+        raise UserError.of(err) from err
     run = trainer.run_config
     print(f"{run['domain']} / {run['algo']} at step {trainer.step}, greedy evaluation:")
     if records is None:
@@ -286,7 +291,7 @@ def _train_options(args: argparse.Namespace):
         domain = registry.get(args.domain)
         check_choice(domain, args.algo, given.get("backend", "torch"))
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
-        raise UserError(err.args[0] if err.args else str(err)) from err
+        raise UserError.of(err) from err
     given.setdefault("seeds", list(range(5)))
     out = args.out or "runs"
     _check_writable_folder(out, "--out")

@@ -306,19 +306,7 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         executor=spec.executor,
         envs_per_learner=spec.envs_per_learner,
     )
-    resumed_at = None if state is None else int(state["trainer"]["step"])
-    made = not opts.resume  # make_run_dir made a fresh folder
-    try:
-        logger = RunLogger(
-            run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
-        )
-        trainer = build_trainer(domain, algo, opts, logger)
-        if state is not None:
-            trainer.load_state_dict(state["trainer"])
-    except BaseException:
-        if made:  # a failed start leaves no half-made run folder behind
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise
+    logger, trainer = _start(domain, algo, opts, run_dir, hparams, state)
     start = time.perf_counter()
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start
@@ -333,7 +321,34 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         title=f"{domain.name} / {algo}",
         reference=domain.reference,
     )
-    summary = {
+    summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
+    logger.write_summary(summary)
+    return run_dir, summary
+
+
+def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: dict | None):
+    """The run's logger and trainer (restored from ``state`` when resuming).
+
+    A failed start of a fresh run removes the folder ``make_run_dir`` made.
+    """
+    resumed_at = None if state is None else int(state["trainer"]["step"])
+    try:
+        logger = RunLogger(
+            run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
+        )
+        trainer = build_trainer(domain, algo, opts, logger)
+        if state is not None:
+            trainer.load_state_dict(state["trainer"])
+    except BaseException:
+        if not opts.resume:  # a failed start leaves no half-made run folder behind
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
+    return logger, trainer
+
+
+def _summary(domain, algo, opts, trainer, result, wall: float, plots, run_dir: Path) -> dict:
+    """What ``summary.json`` holds: the run's settings, status, timings and per-seed results."""
+    return {
         "domain": domain.name,
         "algo": algo,
         "status": "interrupted" if result.interrupted else "finished",
@@ -364,8 +379,6 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         ],
         "plots": [p.name for p in plots],
     }
-    logger.write_summary(summary)
-    return run_dir, summary
 
 
 def evaluate_run(run_dir: str | Path, episodes: int | None = None):
