@@ -35,7 +35,14 @@ from pathlib import Path
 import numpy as np
 
 from hrl_torch.argtypes import int_at_least
-from hrl_torch.experiment import AlgoSpec, DomainSpec, RunOptions, check_domain_env, run_experiment
+from hrl_torch.experiment import (
+    AlgoSpec,
+    DomainSpec,
+    RunOptions,
+    check_choice,
+    check_domain_env,
+    run_experiment,
+)
 from hrl_torch.runlog import mean_ci95
 
 #: the numeric ``TrainConfig`` fields a grid may set
@@ -255,12 +262,9 @@ def run_sweep(
 
     try:
         domain = registry.get(domain_name)
+        check_choice(domain, algo, "torch")
     except KeyError as err:
         raise ValueError(err.args[0]) from None
-    if algo not in domain.algos:
-        raise ValueError(
-            f"{domain_name!r} has no algorithm {algo!r}; choose from {sorted(domain.algos)}"
-        )
     seeds = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
     if not seeds:
         raise ValueError("a sweep needs at least one seed")
@@ -270,12 +274,7 @@ def run_sweep(
     request = {"domain": domain_name, "algo": algo, "grid": grid, "seeds": seeds, "steps": steps}
     request = json.loads(json.dumps({**request, "metric": metric}))
     configs = configurations(grid)
-    for config in configs:  # every key and value is tried before Ray starts or a file is written
-        spec = with_overrides(domain.algos[algo], config)
-        try:
-            spec.make_learner(spec.make_graph(), 1)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"configuration {label(config)}: {err}") from None
+    _check_configurations(domain.algos[algo], configs)  # before Ray starts or a file is written
     check_domain_env(domain, algo)
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
@@ -292,6 +291,16 @@ def run_sweep(
     rows = rank(configs, results, metric)
     write_table(rows, list(grid), metric, sweep_dir)
     return rows
+
+
+def _check_configurations(spec: AlgoSpec, configs: list[dict]) -> None:
+    """Build every configuration's learner once: a bad key or value is a ``ValueError``."""
+    for config in configs:
+        changed = with_overrides(spec, config)
+        try:
+            changed.make_learner(changed.make_graph(), 1)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"configuration {label(config)}: {err}") from None
 
 
 def _check_folder(sweep_dir: Path, request: dict, resume: bool) -> None:
