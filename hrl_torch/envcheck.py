@@ -228,8 +228,10 @@ def _check_population(make_env, steps: int, failures: list[str]) -> None:
     pair, alone = make_env([3, 7], 2), make_env([7], 2)
     gen = torch.Generator().manual_seed(1)
     acts = [_random_action(pair, gen) for _ in range(steps)]
-    first, _ = _rollout(pair, steps, [], actions=acts)
-    second, _ = _rollout(alone, steps, [], actions=[a[2:] for a in acts])
+    crashed: list[str] = []  # a population of two that crashes is a finding too
+    first, _ = _rollout(pair, steps, crashed, actions=acts)
+    second, _ = _rollout(alone, steps, crashed, actions=[a[2:] for a in acts])
+    failures.extend(f"in a population of seeds [3, 7] / seed 7 alone: {c}" for c in crashed)
     _compare(first, second, "the same seed runs in a population", failures, rows=slice(2, 4))
 
 
