@@ -32,8 +32,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from agents.gridworlds import EVAL_SEED, env_factory, grid_algo, optimal_eval_return
-from agents.taxi import flat_graph
+from agents.gridworlds import gridworld_domain, optimal_eval_return
 from envs.four_rooms import (
     GOALS,
     HALLWAY_ROOMS,
@@ -45,12 +44,8 @@ from envs.four_rooms import (
     N_STATES,
     FourRoomsEnv,
     cell_index,
-    decode,
 )
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import DomainSpec
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
-from hrl_torch.learners import MaxQLearner, SMDPQLearner
 
 MOVES = ["North", "South", "East", "West"]
 
@@ -92,13 +87,6 @@ class GoTo(Subtask):
         return ok if self.goal is None else ok & (obs["goal"] == self.goal)
 
 
-def tabulated(graph: TaskGraph) -> TaskGraph:
-    """``graph`` with its context computed once for all 416 states."""
-    states = torch.arange(N_STATES)
-    graph.tabulate(TensorDict(decode(states), batch_size=[N_STATES]))
-    return graph
-
-
 def four_rooms_hierarchy() -> TaskGraph:
     """Root -> ToHallway(h), ToGoal(g) -> moves (see the module docstring)."""
     hallways = [GoTo(f"ToHallway_{h}", HALLWAYS[h], TO_HALLWAY[:, h]) for h in range(4)]
@@ -110,11 +98,11 @@ def four_rooms_hierarchy() -> TaskGraph:
         abstract=lambda o: o["observation"],
     )
     moves = [Primitive(name, k) for k, name in enumerate(MOVES)]
-    return tabulated(TaskGraph("Root", [root, *hallways, *goals, *moves], n_actions=N_ACTIONS))
+    graph = TaskGraph("Root", [root, *hallways, *goals, *moves], n_actions=N_ACTIONS)
+    return FourRoomsEnv.tabulate(graph)
 
 
 # ---------------------------------------------------------------------- experiments
-make_env = env_factory(FourRoomsEnv)
 OPTIMAL = optimal_eval_return(FourRoomsEnv)
 #: near-optimal: within a quarter step per episode of the shortest paths
 THRESHOLD = OPTIMAL - 0.25
@@ -125,31 +113,18 @@ THRESHOLD = OPTIMAL - 0.25
 # with -20 none reached it: the root's choice at a start cell is rarely tried again, and a
 # pessimistic value keeps an untried hallway unattractive), all-states updating on.
 # Flat Q: pessimistic -20 (4/5 seeds, median 42,000 steps; zero: 2/5).
-ALPHA = 0.5
 MAXQ_INIT = 0.0
 Q_INIT = -20.0
-VISITED = 32  # states of a child kept for all-states updating
 
 
-DOMAIN = DomainSpec(
-    name="four-rooms",
-    description="four rooms (Sutton, Precup and Singh 1999), one of four goals per episode",
-    make_env=make_env,
-    eval_seed=EVAL_SEED,
-    reference={f"optimal {OPTIMAL:.2f}": OPTIMAL, f"threshold {THRESHOLD:.2f}": THRESHOLD},
-    algos={
-        "maxq-q": grid_algo(
-            four_rooms_hierarchy,
-            lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=MAXQ_INIT),
-            "MAXQ-Q (all-states updating) on Root -> ToHallway(h), ToGoal(g) -> moves",
-            THRESHOLD,
-            executor=ExecutorConfig(record_visited=VISITED),
-        ),
-        "q": grid_algo(
-            lambda: tabulated(flat_graph(N_STATES, N_ACTIONS)),
-            lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=Q_INIT),
-            "flat Q-learning over the 416 states",
-            THRESHOLD,
-        ),
-    },
+DOMAIN = gridworld_domain(
+    "four-rooms",
+    "four rooms (Sutton, Precup and Singh 1999), one of four goals per episode",
+    FourRoomsEnv,
+    four_rooms_hierarchy,
+    "Root -> ToHallway(h), ToGoal(g) -> moves",
+    OPTIMAL,
+    THRESHOLD,
+    maxq_init=MAXQ_INIT,
+    q_init=Q_INIT,
 )

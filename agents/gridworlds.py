@@ -5,14 +5,18 @@ Used by ``agents.four_rooms`` and ``agents.key_door``.
 
 from __future__ import annotations
 
-from agents.taxi import epsilon_first_third
+from agents.taxi import epsilon_first_third, flat_graph
 from envs.grid import TableEnv, optimal_values
-from hrl_torch.experiment import AlgoSpec
+from hrl_torch.executor import ExecutorConfig
+from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.trainer import TrainConfig
 
 EVAL_SEED = 1_000_003
 EVAL_EPISODES = 100
 STEPS = 100_000
+ALPHA = 0.5  # step size 0.5 beat 0.1 on both gridworlds (docs/defaults.md)
+VISITED = 32  # states of a child kept for all-states updating
 
 
 def env_factory(env_class: type[TableEnv]):
@@ -47,4 +51,44 @@ def grid_algo(make_graph, make_learner, description: str, threshold: float, **op
         envs_per_learner=64,
         description=description,
         **options,
+    )
+
+
+def gridworld_domain(
+    name: str,
+    description: str,
+    env_class: type[TableEnv],
+    hierarchy,
+    hierarchy_text: str,
+    optimal: float,
+    threshold: float,
+    maxq_init: float,
+    q_init: float,
+) -> DomainSpec:
+    """A gridworld domain with its measured initial values.
+
+    MAXQ-Q with all-states updating on ``hierarchy``, flat Q-learning over the env's states.
+    """
+    n_states, n_actions = env_class.transition_tables()[0].shape
+    return DomainSpec(
+        name=name,
+        description=description,
+        make_env=env_factory(env_class),
+        eval_seed=EVAL_SEED,
+        reference={f"optimal {optimal:.2f}": optimal, f"threshold {threshold:.2f}": threshold},
+        algos={
+            "maxq-q": grid_algo(
+                hierarchy,
+                lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=maxq_init),
+                f"MAXQ-Q (all-states updating) on {hierarchy_text}",
+                threshold,
+                executor=ExecutorConfig(record_visited=VISITED),
+            ),
+            "q": grid_algo(
+                lambda: env_class.tabulate(flat_graph(n_states, n_actions)),
+                lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=q_init),
+                f"flat Q-learning over the {n_states} states",
+                threshold,
+            ),
+        },
     )

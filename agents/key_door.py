@@ -31,8 +31,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from agents.gridworlds import EVAL_SEED, env_factory, grid_algo, optimal_eval_return
-from agents.taxi import flat_graph
+from agents.gridworlds import gridworld_domain, optimal_eval_return
 from envs.key_door import (
     GOALS,
     HELD,
@@ -41,19 +40,14 @@ from envs.key_door import (
     N_CELLS,
     N_GOALS,
     N_KEY,
-    N_STATES,
     PICKUP,
     UNLOCK,
     UNLOCK_CELL,
     USED,
     KeyDoorEnv,
     cell_index,
-    decode,
 )
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import DomainSpec
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
-from hrl_torch.learners import MaxQLearner, SMDPQLearner
 
 MOVES = ["North", "South", "East", "West"]
 KEY_NAV = [f"Navigate_K{k}" for k in range(len(KEY_SPOTS))]
@@ -83,13 +77,6 @@ def _bind_key_spot(obs: TensorDict) -> torch.Tensor:
 
 def _cell_and_key(obs: TensorDict) -> torch.Tensor:
     return obs["cell"] * N_KEY + obs["key"]
-
-
-def tabulated(graph: TaskGraph) -> TaskGraph:
-    """``graph`` with its context computed once for all 492 states."""
-    states = torch.arange(N_STATES)
-    graph.tabulate(TensorDict(decode(states), batch_size=[N_STATES]))
-    return graph
 
 
 def key_door_hierarchy() -> TaskGraph:
@@ -128,11 +115,10 @@ def key_door_hierarchy() -> TaskGraph:
         Primitive("Unlock", UNLOCK, N_CELLS * N_KEY, _cell_and_key),
     ]
     graph = TaskGraph("Root", [root, get_key, open_door, *navs, *prims], n_actions=N_ACTIONS)
-    return tabulated(graph)
+    return KeyDoorEnv.tabulate(graph)
 
 
 # ---------------------------------------------------------------------- experiments
-make_env = env_factory(KeyDoorEnv)
 OPTIMAL = optimal_eval_return(KeyDoorEnv)
 #: near-optimal: within a quarter step per episode of the optimal policy
 THRESHOLD = OPTIMAL - 0.25
@@ -142,30 +128,17 @@ THRESHOLD = OPTIMAL - 0.25
 # pessimistic initial values (-25, below every completion value) and step size 0.5 for both;
 # MAXQ-Q with all-states updating reached the threshold in a median 12,500 steps (5/5), flat Q
 # in 42,900 (5/5).
-ALPHA = 0.5
 INIT = -25.0
-VISITED = 32  # states of a child kept for all-states updating
 
 
-DOMAIN = DomainSpec(
-    name="key-door",
-    description="fetch a key, unlock a door, walk to one of two goals",
-    make_env=make_env,
-    eval_seed=EVAL_SEED,
-    reference={f"optimal {OPTIMAL:.2f}": OPTIMAL, f"threshold {THRESHOLD:.2f}": THRESHOLD},
-    algos={
-        "maxq-q": grid_algo(
-            key_door_hierarchy,
-            lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=INIT),
-            "MAXQ-Q (all-states updating) on Root -> GetKey, OpenDoor, Navigate(g)",
-            THRESHOLD,
-            executor=ExecutorConfig(record_visited=VISITED),
-        ),
-        "q": grid_algo(
-            lambda: tabulated(flat_graph(N_STATES, N_ACTIONS)),
-            lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=INIT),
-            "flat Q-learning over the 492 states",
-            THRESHOLD,
-        ),
-    },
+DOMAIN = gridworld_domain(
+    "key-door",
+    "fetch a key, unlock a door, walk to one of two goals",
+    KeyDoorEnv,
+    key_door_hierarchy,
+    "Root -> GetKey, OpenDoor, Navigate(g)",
+    OPTIMAL,
+    THRESHOLD,
+    maxq_init=INIT,
+    q_init=INIT,
 )

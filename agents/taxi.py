@@ -28,7 +28,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from envs.taxi import N_ACTIONS, N_STATES, STATIONS, TaxiEnv, decode
+from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -119,9 +119,7 @@ def tabulated(graph: TaskGraph) -> TaskGraph:
 
     Every predicate of the taxi graphs reads the state alone.
     """
-    states = torch.arange(N_STATES)
-    graph.tabulate(TensorDict(decode(states), batch_size=[N_STATES]))
-    return graph
+    return TaxiEnv.tabulate(graph)
 
 
 def flat_graph(n_states: int = 500, n_actions: int = N_ACTIONS) -> TaskGraph:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+from tensordict import TensorDict
 
 from hrl_torch.env import BatchedEnv
 
@@ -89,6 +90,16 @@ class TableEnv(BatchedEnv):
         self.terminal_table = terminated.to(self.device)
         self.starts = starts.to(self.device)
         self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
+
+    @classmethod
+    def tabulate(cls, graph):
+        """``graph`` with its context computed once for every state (a lookup per step).
+
+        For graphs whose predicates read the state alone, as this env's ``decode`` gives it.
+        """
+        states = torch.arange(cls.transition_tables()[0].shape[0])
+        graph.tabulate(TensorDict(cls.decode(states), batch_size=[states.shape[0]]))
+        return graph
 
     @classmethod
     def gymnasium(cls, render_mode: str | None = None):
