@@ -44,7 +44,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import discount, lookup
+from hrl_torch.ops import discount
 from hrl_torch.stack import TaskStack
 
 #: key of the per-level transitions ``[B, D]`` in a transition batch
@@ -167,13 +167,27 @@ class HierarchicalExecutor:
         )
         self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
         self._row_base = self.rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
-        self._root_level = (self.levels == 0)[None, :]
+        self.levels_row = self.levels[None, :]
+        # the descent (``_descend``): row b's blocks of choices, codes and greedy flags
+        ic, codes = graph.n_choosers, graph.n_choosers + graph.n_instances + 1
+        self._chooser_base = (torch.arange(ic, **long) * graph.max_children)[None, :]
+        self._leaf_codes = torch.arange(ic, codes, **long).expand(batch_size, -1)
+        self._code_base = self.rows * codes
+        self._greedy_base = self.rows[:, None] * (ic + 1)
+        # the per-level sums a new child restarts (the discounted sums are the plain ones when
+        # gamma is 1; the internal ones stay 0 without shaping rewards)
+        self._accumulators = ["steps", "time", "reward"]
+        if self.gamma != 1.0:
+            self._accumulators.append("disc_reward")
+        if graph.shaping_nodes:
+            self._accumulators.append("internal")
+        self._no_reward = torch.zeros(batch_size, self.depth, device=device)
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self._acting: torch.Tensor | None = None  # agent rows acting at this step (observe)
         #: ``interrupt(popped [B, D], ended_own [B, D]) -> [B, D]``: more levels to cut
         self.interrupt = None
-        self.stats = ExecutorStats(self.n_learners, graph.n_nodes, device)
+        self.stats = ExecutorStats(self.learner, self.n_learners, graph.n_nodes)
         #: env steps skipped per learner (``on_bad_step="skip"``)
         self.skipped_steps = torch.zeros(self.n_learners, device=device)
         #: levels ``[B, D]`` whose node was invoked by the last ``act``
@@ -192,57 +206,88 @@ class HierarchicalExecutor:
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
         """Push children until a primitive is on top of every live stack; return actions ``[B]``.
 
-        Rows whose stack is empty and whose episode is not over start at the root. The stacks
-        are filled level by level, top-down: level ``l`` of a row whose stack ends below it
-        gets the child the policy chooses for the instance at level ``l - 1``, until a
-        primitive is on top (``D - 1`` rounds; each row's choice at level ``l - 1`` reads the
-        row's random numbers of that level). Instances are handled as ``instance + 1`` here
-        (0: empty), so that the graph's ``*_1`` tables need no clamping.
+        Rows whose stack is empty and whose episode is not over start at the root. From the
+        instance on top, each row descends by its policy's choices until a primitive is on top;
+        the stack is then the primitive's path from the root (``graph.path_*``). A policy with
+        ``choose_all`` chooses for every choosing instance of a row at once (the choice at
+        depth ``d`` reading the row's random numbers of level ``d``), and the descent follows
+        those choices; otherwise the policy's ``select`` is asked level by level.
         """
         g, f = self.graph, self.stack.tensors()
-        fresh = (f["top"] < 0) & ~f["done"]
-        first = f["top"].masked_fill(fresh, 0)  # the level that makes the first choice
-        old = f["inst"] + 1
-        col = torch.where(fresh, 1, old[:, 0])  # the root (instance 0) of the rows that start
-        # the row's stack goes on above this level (after ``observe`` no primitive is left on
-        # top, except on the agent rows that did not act)
-        acting = self._acting if self._acting is not None else torch.ones_like(fresh)
-        going = (first >= 0) & acting
-        cols, needs, choices = [col], [], []
         policy.new_step()
-        for level in range(1, self.depth):
-            need = going & (level > first)
-            node = torch.take(g.inst_node_1, col)
-            available = self._available_flat(ctx).index_select(0, self._row_base + node)
-            choice = _as_choice(
-                policy.select((col - 1).clamp_min(0), ctx, available, step, level - 1)
-            )
-            child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
-            if choice.score_index is not None:
-                self._record_score(f, level - 1, need, choice)
-            if g.action_dim:
-                self._record_action(f, need & ~torch.take(g.inst_composite_1, child), choice)
-            col = torch.where(need, child, old[:, level])
-            going = going & torch.take(g.inst_composite_1, col)
-            cols.append(col)
-            needs.append(need)
-            choices.append(choice)
-        chose = torch.stack(needs, 1)
-        f["inst"] = torch.stack(cols, 1) - 1
-        for key, attr in (("child", "child"), ("own_greedy", "greedy")):
-            new = torch.stack([getattr(c, attr) for c in choices], 1)
-            f[key] = torch.cat([torch.where(chose, new, f[key][:, :-1]), f[key][:, -1:]], 1)
-        top = (f["inst"] >= 0).sum(1) - 1
-        f["top"] = top
-        self._fresh_levels(f, ctx, first, fresh, acting)
+        choose_all = getattr(policy, "choose_all", None)
+        choice = choose_all(ctx, step) if choose_all is not None else None
+        if choice is not None:
+            top1, own_greedy = self._descend(f, choice)
+        else:
+            top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step)
+        self._push(f, ctx, top1, own_greedy)
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         self._acting = None
         if g.action_dim:
-            self._action = torch.where((top >= 0)[:, None], f["cont_action"], 0.0)
-        else:  # the primitive on top: the last non-empty column
-            self._action = torch.take(g.inst_action_1, f["inst"].amax(1) + 1)
+            self._action = torch.where((f["top"] >= 0)[:, None], f["cont_action"], 0.0)
+        else:
+            self._action = torch.take(g.inst_action_1, top1)
         self._obs = ctx.obs
         return self._action
+
+    def _start_code(self, f: dict) -> torch.Tensor:
+        """Where each row's descent starts ``[B]`` (a descent code, ``graph._compile_paths``).
+
+        The instance on top (the root for an empty stack); nothing for a row waiting for its
+        reset and for an agent row that does not act (its primitive stays on top).
+        """
+        g = self.graph
+        top1 = f["inst"].amax(1) + 1  # ids grow along a path: the top is the largest
+        code = torch.take(g.inst_start_code_1, top1).masked_fill(f["done"], g.n_choosers)
+        if self._acting is not None:
+            code = torch.where(self._acting, code, g.n_choosers + top1)
+        return code
+
+    def _descend(self, f: dict, choice: Choice) -> tuple[torch.Tensor, torch.Tensor]:
+        """Follow the choices of every choosing instance ``[B, Ic]`` down to a primitive.
+
+        Returns the instance on top + 1 ``[B]`` and each level's choice greedy flag on the
+        new stack ``[B, D]`` (True where nothing was chosen).
+        """
+        g, ic = self.graph, self.graph.n_choosers
+        nxt = torch.take(g.chooser_next_code, self._chooser_base + choice.child)
+        nxt = torch.cat([nxt, self._leaf_codes], 1).view(-1)  # a primitive stays where it is
+        code = self._start_code(f)
+        for _ in range(self.depth - 1):
+            code = torch.take(nxt, self._code_base + code)
+        top1 = code - ic
+        greedy = torch.nn.functional.pad(choice.greedy, (0, 1), value=True).view(-1)
+        own = torch.take(greedy, self._greedy_base + g.path_chooser_1.index_select(0, top1))
+        return top1, own
+
+    def _descend_level_by_level(self, f, ctx, policy, step) -> tuple[torch.Tensor, torch.Tensor]:
+        """``_descend`` with the policy's ``select`` asked once per level (any policy).
+
+        The choice of the instance at depth ``d`` reads the row's random numbers of level
+        ``d`` (``push=d``); a policy's scores and continuous actions are kept on the stack.
+        """
+        g = self.graph
+        ic = g.n_choosers
+        code = self._start_code(f)  # back to instances + 1 (0: none)
+        col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
+        flags = []
+        for level in range(self.depth - 1):
+            node = torch.take(g.inst_node_1, col)
+            at_level = torch.take(g.inst_depth_1, col) == level
+            chooses = torch.take(g.inst_composite_1, col) & at_level
+            available = self._available_flat(ctx).index_select(0, self._row_base + node)
+            choice = _as_choice(policy.select((col - 1).clamp_min(0), ctx, available, step, level))
+            child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
+            if choice.score_index is not None:
+                self._record_score(f, level, chooses, choice)
+            if g.action_dim:
+                self._record_action(f, chooses & ~torch.take(g.inst_composite_1, child), choice)
+            col = torch.where(chooses, child, col)
+            flags.append(choice.greedy | ~chooses)
+        flags.append(torch.ones_like(col, dtype=torch.bool))
+        own = torch.stack(flags, 1)
+        return col, own
 
     def _available_flat(self, ctx: StepContext) -> torch.Tensor:
         """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
@@ -266,28 +311,36 @@ class HierarchicalExecutor:
             raise GraphError("a continuous primitive was chosen without an action value")
         f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
 
-    def _fresh_levels(self, f: dict, ctx: StepContext, first, rooted, acting) -> None:
-        """Start states, accumulators and flags of the levels pushed (or re-chosen) this step.
+    def _push(self, f: dict, ctx: StepContext, top1: torch.Tensor, own_greedy) -> None:
+        """The stacks of the instances ``top1 - 1`` on top, with their fresh levels set.
 
-        Levels ``first .. top`` of the live rows are fresh: the ones below ``top`` chose a new
-        child (accumulators restart), the ones above ``first`` are new invocations, and so is
-        the root of the rows that started (``rooted``).
+        Levels from the old top to the new one are fresh: the ones below the new top chose a
+        new child (accumulators restart), the ones above the old top are new invocations (the
+        root too on a row that starts). Levels below the old top keep what they had.
         """
-        g, lv = self.graph, self.levels[None, :]
-        top = f["top"]
-        fresh = (lv >= first[:, None]) & (lv <= top[:, None]) & acting[:, None]
-        chose = fresh & (lv < top[:, None])
-        invoked = (fresh & (lv > first[:, None])) | (rooted[:, None] & self._root_level)
-        node = lookup(g.inst_node, f["inst"].clamp_min(0))
+        g, lv = self.graph, self.levels_row
+        old_top = f["top"][:, None]  # -1 on a row that starts: its root is fresh too
+        f["inst"] = g.path_inst_1.index_select(0, top1)
+        f["node"] = node = g.path_node_1.index_select(0, top1)
+        top = torch.take(g.inst_depth_1, top1)
+        f["top"] = top
+        new_top = top[:, None]
+        kept = lv < old_top
+        chose = ~kept & (lv < new_top)
+        invoked = (lv > old_top) & (lv <= new_top)
         stuck = chose & ~ctx.available.any(-1).gather(1, node)
         if bool(stuck.any()):
             _raise_stuck(g, stuck, node)
+        f["child"] = torch.where(kept, f["child"], g.path_child_1.index_select(0, top1))
+        f["own_greedy"] = own = torch.where(kept, f["own_greedy"], own_greedy)
+        f["greedy"] = own.cummin(1).values  # the level's own choice and every ancestor's
+        fresh = chose | invoked
         f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])
-        for key in ("steps", "time", "reward", "disc_reward", "internal"):
+        for key in self._accumulators:
             f[key] = f[key].masked_fill(chose, 0)
+        if self.gamma == 1.0:
+            f["disc_reward"] = f["reward"]
         f["inv_steps"] = f["inv_steps"].masked_fill(invoked, 0)
-        # greedy: the level's own choice and every ancestor's (a running AND over levels)
-        f["greedy"] = f["own_greedy"].cummin(1).values
         if ctx.features is not None:
             feats = ctx.features.gather(1, node[..., None].expand(-1, -1, ctx.features.shape[2]))
             f["start_features"] = torch.where(chose[..., None], feats, f["start_features"])
@@ -300,7 +353,7 @@ class HierarchicalExecutor:
             started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
             started = started.scatter_add(1, node, invoked.float()) > 0
             f["memory"] = torch.where(started[..., None], g.remember_all(ctx.obs), f["memory"])
-        self.stats.count_calls(self.learner, node, invoked)
+        self.stats.count_calls(node, invoked)
         self.invoked = invoked
 
     # ------------------------------------------------------------------ observing
@@ -321,40 +374,43 @@ class HierarchicalExecutor:
         env_term = step_td["terminated"] & real
         env_trunc = step_td["truncated"] & real & ~env_term
         stepped = real if self._acting is None else real & self._acting
-        inst = f["inst"]
+        inst, node = f["inst"], f["node"]
         active = (inst >= 0) & stepped[:, None]
-        node = lookup(g.inst_node, inst.clamp_min(0))
-        is_prim = lookup(g.node_is_primitive, node) & active
+        is_prim = torch.take(g.node_is_primitive, node) & active
         self._accumulate(f, active, node, reward, tau, ctx)
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
-        ended_own = own | is_prim | (active & env_term[:, None])
+        env_ended = active & env_term[:, None]
+        ended_own = own | is_prim | env_ended
+        cut = ended_own | (active & env_trunc[:, None])
         timeout = self._timeouts(f, active, is_prim, node)
-        cut = ended_own | timeout | (active & env_trunc[:, None])
+        if timeout is not None:
+            cut = cut | timeout
         if bad is not None:  # a skipped step aborts the row's whole stack
             cut = cut | (active & bad[:, None])
         if self.interrupt is not None:  # e.g. the tau_any scheme (hrl_torch.multiagent)
             cut = cut | (self.interrupt((cut.cumsum(1) > 0) & active, ended_own) & active)
         popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
-        emit = active & ~is_prim & _shift_left(popped)
+        chose = active & ~is_prim  # levels whose child ran this step
+        emit = chose & _shift_left(popped)
         taught = stepped  # rows whose primitive step is a transition
         if bad is not None:  # ... and teaches nothing
             emit, taught = emit & ~bad[:, None], stepped & ~bad
-        terminal = (own | env_term[:, None]) & active & ~is_prim
+        terminal = (own | env_ended) & chose
 
         batch = None
         if transitions:
             batch = self._transitions(
-                f, step_td, ctx, node, emit, _shift_left(ended_own), terminal, env_trunc, taught
+                f, step_td, ctx, emit, _shift_left(ended_own), terminal, env_trunc, taught, is_prim
             )
         if self.config.record_visited:
-            self._record_visits(f, active & ~is_prim & ~_shift_left(popped), ctx, node)
+            self._record_visits(f, chose & ~_shift_left(popped), ctx, node)
 
-        self.stats.count_ends(self.learner, node, popped, ended_own & popped, f["inv_steps"])
+        self.stats.count_ends(node, popped, ended_own, f["inv_steps"])
         f["inst"] = inst.masked_fill(popped, -1)
-        top = torch.where(real, (active & ~popped).sum(1) - 1, -1)
-        f["top"] = top if self._acting is None else torch.where(stepped | ~real, top, f["top"])
+        top = (f["top"] - popped.sum(1)).masked_fill(~real, -1)
+        f["top"] = top
         f["done"] = env_term | env_trunc
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         return batch
@@ -394,8 +450,8 @@ class HierarchicalExecutor:
         g = self.graph
         r = active * reward[:, None]
         f["reward"] = f["reward"] + r
-        if self.gamma == 1.0:
-            f["disc_reward"] = f["disc_reward"] + r
+        if self.gamma == 1.0:  # undiscounted: the same sums
+            f["disc_reward"] = f["reward"]
         else:
             f["disc_reward"] = f["disc_reward"] + discount(self.gamma, f["time"]) * r
         if g.shaping_nodes and self._obs is not None:
@@ -407,12 +463,14 @@ class HierarchicalExecutor:
         f["time"] = f["time"] + active * tau[:, None]
         f["inv_steps"] = f["inv_steps"] + active
 
-    def _timeouts(self, f: dict, active, is_prim, node) -> torch.Tensor:
-        """Levels ``[B, D]`` past the guard (raises with ``on_timeout="raise"``).
+    def _timeouts(self, f: dict, active, is_prim, node) -> torch.Tensor | None:
+        """Levels ``[B, D]`` past the guard, or ``None`` (raises with ``on_timeout="raise"``).
 
         The guard spares the root: a continuing root never terminates by design.
         """
         cfg = self.config
+        if int(f["inv_steps"][:, 1:].amax()) < cfg.max_subtask_steps:  # (also stale levels)
+            return None
         timeout = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
         if cfg.on_timeout == "raise" and bool(timeout.any()):
             row, lvl = (int(v) for v in timeout.nonzero()[0])
@@ -441,14 +499,14 @@ class HierarchicalExecutor:
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
-    def _transitions(self, f, step_td, ctx, node, emit, child_done, terminal, env_trunc, real):
+    def _transitions(self, f, step_td, ctx, emit, child_done, terminal, env_trunc, real, is_prim):
         """The finished SMDP transitions of this step (see the module docstring)."""
-        g, b, dev = self.graph, self.batch_size, self.device
+        g, b, node = self.graph, self.batch_size, f["node"]
         if g.internal_nodes:
             pseudo = g.internal_rewards_at_termination(ctx.obs, f["memory"]).gather(1, node)
             pseudo = pseudo * terminal
         else:
-            pseudo = torch.zeros(node.shape, device=dev)
+            pseudo = self._no_reward
         level = {
             "valid": emit,
             "inst": f["inst"],
@@ -490,30 +548,27 @@ class HierarchicalExecutor:
             {
                 "learner": self.learner,
                 LEVEL: TensorDict._new_unsafe(level, batch_size=torch.Size([b, self.depth])),
-                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real), size),
+                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real, is_prim), size),
             },
             batch_size=size,
         )
 
-    def _primitive(self, f: dict, step_td: TensorDict, real: torch.Tensor) -> dict:
-        """The fields of the primitive step each row just took (``batch[PRIMITIVE]``)."""
+    def _primitive(self, f: dict, step_td: TensorDict, real, is_prim) -> dict:
+        """The fields of the primitive step each row just took (``batch[PRIMITIVE]``).
+
+        ``is_prim [B, D]`` marks the level of the primitive that ran.
+        """
         g, top = self.graph, f["top"]
-        at_top = top.clamp_min(0)[:, None]
-        inst = f["inst"].gather(1, at_top).squeeze(1)
-        under = f["greedy"].gather(1, (top - 1).clamp_min(0)[:, None]).squeeze(1)
-        node = lookup(g.inst_node, inst.clamp_min(0))
-        if g.action_dim:
-            action = f["cont_action"]
-        else:
-            action = lookup(g.node_action, node)
+        top1 = f["inst"].amax(1) + 1  # the instance on top, + 1
+        action = f["cont_action"] if g.action_dim else torch.take(g.inst_action_1, top1)
         return {
             "valid": real & (top >= 0),
-            "inst": inst,
-            "node": node,
-            "state": f["start_state"].gather(1, at_top).squeeze(1),
+            "inst": top1 - 1,
+            "node": torch.take(g.inst_node_1, top1),
+            "state": (f["start_state"] * is_prim).sum(1),
             "reward": step_td["reward"],
             "duration": step_td["duration"],
-            "greedy": under,
+            "greedy": f["own_greedy"].all(1),  # the levels at and above the top hold True
             "action": action,
         }
 
@@ -530,7 +585,10 @@ class HierarchicalExecutor:
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a ``state_dict`` taken from an executor of the same shape."""
-        stack = self.stack.load_state_dict(state["stack"])
+        fields = dict(state["stack"])
+        if "node" not in fields and "inst" in fields:  # a checkpoint from before the field
+            fields["node"] = self.graph.path_node_1[fields["inst"].amax(1).to(self.device) + 1]
+        stack = self.stack.load_state_dict(fields)
         self.stats.load_state_dict(state["stats"])
         self.stack = stack
         self._action = state["action"].to(self.device).clone()
@@ -571,32 +629,30 @@ class ExecutorStats:
 
     One buffer ``[4, P * N]`` (rows: calls, ends, successes, durations), so a step counts
     with one ``index_add_``; ``calls`` etc. are views of its rows ``[P, N]``.
+
+    Args:
+        learner: the learner of each executor row ``[B]``.
+        n_learners: ``P``.
+        n_nodes: ``N``.
     """
 
     FIELDS = ("calls", "ends", "successes", "durations")
 
-    def __init__(self, n_learners: int, n_nodes: int, device: torch.device) -> None:
-        self.counts = torch.zeros(4, n_learners * n_nodes, device=device)
-        self.n_nodes = n_nodes
-        self._base = None  # each row's learner block (the rows are fixed per executor)
+    def __init__(self, learner: torch.Tensor, n_learners: int, n_nodes: int) -> None:
+        self.counts = torch.zeros(4, n_learners * n_nodes, device=learner.device)
+        self._base = learner[:, None] * n_nodes  # each row's learner block
         self.shape = (n_learners, n_nodes)
         for k, name in enumerate(self.FIELDS):
             setattr(self, name, self.counts[k].view(self.shape))
 
-    def _add(self, learner, node, values: torch.Tensor, rows: slice) -> None:
-        if self._base is None or self._base.shape[0] != learner.shape[0]:
-            self._base = learner[:, None] * self.n_nodes
-        idx = (self._base + node).view(-1)
-        self.counts[rows].index_add_(1, idx, values.view(values.shape[0], -1))
-
-    def count_calls(self, learner: torch.Tensor, node: torch.Tensor, mask: torch.Tensor) -> None:
+    def count_calls(self, node: torch.Tensor, mask: torch.Tensor) -> None:
         """Count one invocation of ``node[b, k]`` where ``mask[b, k]`` (``[B, D]``)."""
-        self._add(learner, node, mask.float()[None], slice(0, 1))
+        self.calls.view(-1).index_add_(0, (self._base + node).view(-1), mask.view(-1).float())
 
-    def count_ends(self, learner, node, popped, success, inv_steps) -> None:
-        """Count finished invocations (``[B, D]`` masks) and their lengths in steps."""
-        values = torch.stack([popped, success, inv_steps * popped]).float()
-        self._add(learner, node, values, slice(1, 4))
+    def count_ends(self, node, popped, ended_own, inv_steps) -> None:
+        """Count finished invocations, their successes and lengths in steps (``[B, D]``)."""
+        values = torch.stack([popped, ended_own & popped, inv_steps * popped]).float()
+        self.counts[1:].index_add_(1, (self._base + node).view(-1), values.view(3, -1))
 
     def reset(self) -> None:
         """Zero every counter (after logging)."""

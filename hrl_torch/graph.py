@@ -444,7 +444,7 @@ class TaskGraph(nn.Module):
         self.register_buffer("inst_children_flat", inst_children.view(-1), persistent=False)
         # the executor's tables over ``instance + 1`` (0: an empty level): node, whether it is
         # non-primitive (it chooses), its env action, and its children (+ 1; 0: no child)
-        node_1 = torch.tensor([0] + inst_node, **as_long)
+        node_1 = torch.tensor(inst_node[:1] + inst_node, **as_long)  # (0: the root's)
         composite_1 = torch.cat(
             [torch.zeros(1, dtype=torch.bool), ~self.node_is_primitive[torch.tensor(inst_node)]]
         )
@@ -468,6 +468,62 @@ class TaskGraph(nn.Module):
         self.register_buffer(
             "inst_is_primitive", self.node_is_primitive[self.inst_node], persistent=False
         )
+        self._compile_paths(inst_parent, inst_slot, inst_depth)
+
+    def _compile_paths(self, inst_parent, inst_slot, inst_depth) -> None:
+        """``path_*`` buffers: the whole Task-Stack of each instance, and the choosers.
+
+        An instance at depth ``d`` sits at stack level ``d`` and the stack below it is its
+        path from the root, so the stack of a row is a function of the instance on top:
+        ``path_inst_1[i + 1]`` is that stack ``[D]`` (-1 above the top; row 0: an empty stack),
+        ``path_node_1`` its nodes (the root's node above the top), ``path_child_1`` the child
+        slot each level chose (0 at and above the top), ``path_chooser_1`` each level's rank
+        among the *choosers* (the non-primitive instances, ``choosers [Ic]``; ``Ic`` at and
+        above the top). Instances are numbered breadth first, so along a path the ids grow:
+        the instance on top of a stack is its largest id.
+        """
+        m, d = self.n_instances, self.max_levels
+        choosers = (~self.inst_is_primitive).nonzero().squeeze(1)
+        rank = torch.full((m,), len(choosers), dtype=torch.long)
+        rank[choosers] = torch.arange(len(choosers))
+        inst = torch.full((m + 1, d), -1, dtype=torch.long)
+        child = torch.zeros(m + 1, d, dtype=torch.long)
+        for k in range(m):
+            level, slot, i = inst_depth[k], 0, k
+            while i >= 0:
+                inst[k + 1, level] = i
+                child[k + 1, level] = slot
+                level, slot, i = level - 1, inst_slot[i], inst_parent[i]
+        root_node = self.inst_node[0]
+        node = torch.where(inst >= 0, self.inst_node[inst.clamp_min(0)], root_node)
+        chooser = torch.where(inst >= 0, rank[inst.clamp_min(0)], len(choosers))
+        self.n_choosers = len(choosers)
+        depth_1 = torch.tensor([-1] + list(inst_depth), dtype=torch.long)
+        # descent codes: a chooser's rank, or Ic + (instance + 1) for a primitive (or 0: none)
+        ic = len(choosers)
+        kids = self.inst_children[choosers]  # [Ic, A]
+        kid_chooses = (kids >= 0) & ~self.inst_is_primitive[kids.clamp_min(0)]
+        next_code = torch.where(kid_chooses, rank[kids.clamp_min(0)], ic + kids + 1)
+        start_code = torch.cat(
+            [
+                torch.zeros(1, dtype=torch.long),
+                torch.where(self.inst_is_primitive, ic + torch.arange(1, m + 1), rank),
+            ]
+        )  # an empty stack starts at the root (chooser 0)
+        for name, value in (
+            ("chooser_next_code", next_code.view(-1)),
+            ("inst_start_code_1", start_code),
+            ("path_inst_1", inst),
+            ("path_node_1", node),
+            ("path_child_1", child),
+            ("path_chooser_1", chooser),
+            ("inst_depth_1", depth_1),
+            ("choosers", choosers),
+            ("chooser_node", self.inst_node[choosers]),
+            ("chooser_depth", torch.tensor(inst_depth, dtype=torch.long)[choosers]),
+            ("chooser_rank", rank),
+        ):
+            self.register_buffer(name, value, persistent=False)
 
     def _compile_capabilities(self) -> None:
         """Which nodes have internal rewards, custom predicates, features and memory."""

@@ -23,12 +23,14 @@ class TaskStack:
 
     Per level ``[B, D]`` (accumulators count from the start of the level's current child):
 
-    - ``inst``: instance at each level (-1: empty); ``child``: the child slot it chose;
+    - ``inst``: instance at each level (-1: empty), ``node`` its node (the root's where
+      empty); ``child``: the child slot it chose (0 at and above the top);
     - ``start_state``: abstract state of the level's node where the child started (for the
       primitive on top: the primitive's own abstract state);
     - ``steps`` (primitive steps ``N``), ``time`` (duration ``tau``), ``reward`` (external
       reward), ``disc_reward`` (``sum gamma^t r``), ``internal`` (discounted shaping reward);
-    - ``greedy`` (the child and every ancestor's choice were greedy), ``own_greedy``;
+    - ``greedy`` (the child and every ancestor's choice were greedy), ``own_greedy`` (True
+      at and above the top);
     - ``inv_steps``: primitive steps of the level's own invocation (the guard);
     - ``vis_state``, ``vis_steps``, ``vis_time`` ``[B, D, L]``: the last ``L`` states visited
       during the child (all-states updating);
@@ -43,6 +45,7 @@ class TaskStack:
     """
 
     inst: torch.Tensor
+    node: torch.Tensor
     child: torch.Tensor
     start_state: torch.Tensor
     steps: torch.Tensor
@@ -86,6 +89,7 @@ class TaskStack:
         k = max(score_width, 1)
         return cls(
             inst=torch.full((b, d), -1, dtype=long, device=dev),
+            node=torch.full((b, d), int(graph.inst_node[0]), dtype=long, device=dev),
             child=zeros(d, dtype=long),
             start_state=zeros(d, dtype=long),
             steps=zeros(d, dtype=long),

@@ -202,10 +202,9 @@ class EvalPlan(nn.Module):
     Buffers: ``order [Tc]`` table ids, ``node [Tc]`` their graph nodes, ``child_table [Tc, A]``
     the children's table ids (padding: 0), ``child_valid [Tc, A]``, ``inst_pos [I]`` the
     position in ``order`` of each instance's table (0 for primitives), ``prims [Tp]`` the
-    primitive tables and ``prim_node [Tp]`` their nodes; ``choosers [Ic]`` the non-primitive
-    instances (``chooser_rank [I]`` the rank of each among them) with their table positions,
-    nodes and depths. With ``keep [T]`` only those non-primitive tables are planned (the other
-    instances' positions read 0).
+    primitive tables and ``prim_node [Tp]`` their nodes; ``chooser_pos [Ic]`` the table
+    positions of the choosing instances (``graph.choosers``). With ``keep [T]`` only those
+    non-primitive tables are planned (the other instances' positions read 0).
     """
 
     def __init__(
@@ -234,18 +233,9 @@ class EvalPlan(nn.Module):
         ):
             self.register_buffer(name, value, persistent=False)
         self.register_buffer("cols", torch.arange(layout.max_children), persistent=False)
-        # the instances that choose (non-primitive): their rank, table position, node, depth
-        choosers = (~graph.inst_is_primitive).nonzero().squeeze(1)
-        rank = torch.zeros(graph.n_instances, dtype=torch.long)
-        rank[choosers] = torch.arange(len(choosers))
-        for name, value in (
-            ("choosers", choosers),
-            ("chooser_rank", rank),
-            ("chooser_pos", pos[layout.inst_table[choosers]]),
-            ("chooser_node", graph.inst_node[choosers]),
-            ("chooser_depth", graph.inst_depth[choosers]),
-        ):
-            self.register_buffer(name, value, persistent=False)
+        # the table position of every choosing instance (``graph.choosers``)
+        chooser_pos = pos[layout.inst_table[graph.choosers]]
+        self.register_buffer("chooser_pos", chooser_pos, persistent=False)
         self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def offsets(self, bank: TableBank) -> tuple[torch.Tensor, torch.Tensor]:

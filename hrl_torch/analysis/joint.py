@@ -101,7 +101,7 @@ def joint_chain(
         s_next = next_state[s, a].reshape(-1)  # [m * K]
         agent = make_agent(len(s_next))
         agent.executor.stack = _stack_of(
-            agent.executor.stack, _repeat_rows(inst, agent.n_agents, n_out)
+            agent.graph, agent.executor.stack, _repeat_rows(inst, agent.n_agents, n_out)
         )
         agent.decide(_step(observe(s_next), is_init=False))
         before = len(index)
@@ -173,10 +173,11 @@ def _repeat_rows(inst: torch.Tensor, n: int, k: int) -> torch.Tensor:
     return inst.view(m, n, -1).repeat_interleave(k, 0).reshape(m * k * n, -1)
 
 
-def _stack_of(template: TaskStack, inst: torch.Tensor) -> TaskStack:
+def _stack_of(graph, template: TaskStack, inst: torch.Tensor) -> TaskStack:
     """``template`` (empty stacks) holding the instances ``inst [R, D]``."""
     f = template.tensors()
     f["inst"] = inst.clone()
+    f["node"] = graph.path_node_1.index_select(0, inst.amax(1) + 1)
     f["top"] = (inst >= 0).sum(1) - 1
     return TaskStack.from_tensors(f, inst.shape[0])
 

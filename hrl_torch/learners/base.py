@@ -172,8 +172,8 @@ class ValuePolicy:
     Every step draws one block of uniforms per stack level (``new_step``), and a choice made
     at level ``l`` reads block ``l``: a row's random stream never depends on what other rows
     do, so a population equals separate runs. Tabular learners (``instance_action_values``)
-    have every choosing instance's choice made at once, on the first ``select`` of a step;
-    the executor's pushes then read them.
+    choose for every choosing instance at once (``choose_all``); the executor then follows
+    those choices down the stack. Other learners are asked level by level (``select``).
 
     Args:
         learner: provides ``action_values`` (and optionally ``instance_action_values``).
@@ -194,38 +194,35 @@ class ValuePolicy:
         self.width = uniforms_needed(learner.graph.max_children)
         self.all_at_once = hasattr(learner, "instance_action_values")
         self._u = None
-        self._choices = None
 
     def new_step(self) -> None:
         """Draw this step's uniforms ``[B, levels, width]``."""
         levels = self.learner.graph.max_levels
         self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
-        self._choices = None
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
     ) -> Choice:
         """The choices for instances ``inst [B]`` at stack level ``push``."""
-        if not self.all_at_once:
-            q = self.learner.action_values(inst, ctx)
-            if self.choice_cost is not None:
-                q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
-            return Choice(*self.exploration.select(q, available, self._u[:, push], step))
-        if self._choices is None:
-            self._choices = self._choose_all(ctx, step)
-        plan = self.learner.plan
-        flat = self._row_base + lookup(plan.chooser_rank, inst)
-        child, greedy = self._choices
-        return Choice(torch.take(child, flat), torch.take(greedy, flat))
+        q = self.learner.action_values(inst, ctx)
+        if self.choice_cost is not None:
+            q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
+        return Choice(*self.exploration.select(q, available, self._u[:, push], step))
 
-    def _choose_all(self, ctx: StepContext, step: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(child, greedy)`` ``[B * Ic]`` of every choosing instance (its level's uniforms)."""
-        plan = self.learner.plan
+    def choose_all(self, ctx: StepContext, step: int) -> Choice | None:
+        """The choices ``[B, Ic]`` of every choosing instance (``graph.choosers``).
+
+        The instance at depth ``d`` reads the uniforms of level ``d``. ``None`` for learners
+        without ``instance_action_values`` (the executor then asks ``select``).
+        """
+        if not self.all_at_once:
+            return None
+        g = self.learner.graph
         q = self.learner.instance_action_values(ctx)
         if self.choice_cost is not None:
-            q = q - self.choice_cost.index_select(0, plan.chooser_node)
+            q = q - self.choice_cost.index_select(0, g.chooser_node)
         b, ic, a = q.shape
-        available = ctx.available.index_select(1, plan.chooser_node).view(-1, a)
-        u = self._u.index_select(1, plan.chooser_depth).view(-1, self.width)
-        self._row_base = torch.arange(b, device=q.device) * ic
-        return self.exploration.select(q.view(-1, a), available, u, step)
+        available = ctx.available.index_select(1, g.chooser_node).view(-1, a)
+        u = self._u.index_select(1, g.chooser_depth).view(-1, self.width)
+        child, greedy = self.exploration.select(q.view(-1, a), available, u, step)
+        return Choice(child.view(b, ic), greedy.view(b, ic))
