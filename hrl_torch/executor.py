@@ -22,6 +22,10 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
 - ``terminal`` (``s'`` is terminal for ``node``), ``child_done`` (the child ended by its own
   termination, not by an abort), ``truncated`` (time limit), ``greedy`` (the child and all its
   ancestors were chosen greedily), ``own_greedy`` (the child was chosen greedily);
+- ``ran``: the level holds the primitive that ran this step (its ``state`` is the primitive's
+  own abstract state and ``child`` is 0), when the step teaches; the same step as
+  ``batch[PRIMITIVE]``, placed on its level so that one update can reach ``C`` of the finished
+  children and ``V`` of the primitive;
 - with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
   ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
   where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
@@ -398,11 +402,12 @@ class HierarchicalExecutor:
         if bad is not None:  # ... and teaches nothing
             emit, taught = emit & ~bad[:, None], stepped & ~bad
         terminal = (own | env_ended) & chose
+        ran = is_prim if bad is None else is_prim & ~bad[:, None]  # the primitive, if it teaches
 
         batch = None
         if transitions:
             batch = self._transitions(
-                f, step_td, ctx, emit, _shift_left(ended_own), terminal, env_trunc, taught, is_prim
+                f, step_td, ctx, emit, _shift_left(ended_own), terminal, env_trunc, taught, ran
             )
         if self.config.record_visited:
             self._record_visits(f, chose & ~_shift_left(popped), ctx, node)
@@ -499,7 +504,7 @@ class HierarchicalExecutor:
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
-    def _transitions(self, f, step_td, ctx, emit, child_done, terminal, env_trunc, real, is_prim):
+    def _transitions(self, f, step_td, ctx, emit, child_done, terminal, env_trunc, real, ran):
         """The finished SMDP transitions of this step (see the module docstring)."""
         g, b, node = self.graph, self.batch_size, f["node"]
         if g.internal_nodes:
@@ -526,6 +531,7 @@ class HierarchicalExecutor:
             "truncated": env_trunc[:, None] & emit & ~terminal,
             "greedy": f["greedy"],
             "own_greedy": f["own_greedy"],
+            "ran": ran,
         }
         if ctx.features is not None:
             level["features"] = f["start_features"]
@@ -548,15 +554,16 @@ class HierarchicalExecutor:
             {
                 "learner": self.learner,
                 LEVEL: TensorDict._new_unsafe(level, batch_size=torch.Size([b, self.depth])),
-                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real, is_prim), size),
+                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real, ran), size),
             },
             batch_size=size,
         )
 
-    def _primitive(self, f: dict, step_td: TensorDict, real, is_prim) -> dict:
+    def _primitive(self, f: dict, step_td: TensorDict, real, ran) -> dict:
         """The fields of the primitive step each row just took (``batch[PRIMITIVE]``).
 
-        ``is_prim [B, D]`` marks the level of the primitive that ran.
+        ``ran [B, D]`` marks the level of the primitive (its ``state`` reads 0 where the step
+        teaches nothing).
         """
         g, top = self.graph, f["top"]
         top1 = f["inst"].amax(1) + 1  # the instance on top, + 1
@@ -565,7 +572,7 @@ class HierarchicalExecutor:
             "valid": real & (top >= 0),
             "inst": top1 - 1,
             "node": torch.take(g.inst_node_1, top1),
-            "state": (f["start_state"] * is_prim).sum(1),
+            "state": (f["start_state"] * ran).sum(1),
             "reward": step_td["reward"],
             "duration": step_td["duration"],
             "greedy": f["own_greedy"].all(1),  # the levels at and above the top hold True

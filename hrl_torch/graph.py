@@ -269,7 +269,9 @@ class StepContext:
     ``blocked`` ``[B, n_nodes]`` bool (a terminal *state*: the node can neither start nor has
     value here; ``terminated`` without the event-terminated nodes),
     ``available`` ``[B, n_nodes, max_children]`` bool, ``features``
-    ``[B, n_nodes, max_features]`` float (``None`` when no node has features).
+    ``[B, n_nodes, max_features]`` float (``None`` when no node has features); ``table_row``
+    ``[B]`` the row of each observation in a tabulated graph's tables (``None`` otherwise),
+    so that learners can look up their own per-state tables too.
     Learners add their own per-node values to ``values`` (e.g. ``V`` ``[B, n_tables]``).
     """
 
@@ -281,6 +283,7 @@ class StepContext:
     available: torch.Tensor
     features: torch.Tensor | None = None
     values: dict[str, torch.Tensor] = field(default_factory=dict)
+    table_row: torch.Tensor | None = None
 
 
 class TaskGraph(nn.Module):
@@ -631,6 +634,7 @@ class TaskGraph(nn.Module):
                 lookup(self.tab_blocked, s),
                 lookup(self.tab_available, s),
                 features,
+                table_row=s,
             )
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)

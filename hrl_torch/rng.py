@@ -39,12 +39,17 @@ def _mix32_int(x: int) -> int:
 class BatchRNG:
     """Reproducible uniform numbers for ``B = P * E`` rows, one independent stream per row.
 
+    Draw number ``c`` of a row is a function of the row's key and ``c`` alone.
+
     Args:
         seeds: one seed per learner (length ``P``).
         envs_per_learner: ``E``, rows per learner.
         stream: a name that separates independent uses (env dynamics, exploration, ...).
         device: where draws are made.
     """
+
+    AHEAD = 64  # draws of one width computed at once (see ``uniform``)
+    AHEAD_ELEMENTS = 1 << 18
 
     def __init__(
         self,
@@ -69,34 +74,43 @@ class BatchRNG:
             seed_keys.repeat_interleave(envs_per_learner) ^ local.repeat(len(seeds))
         )
         self.counter = 0
+        self._ahead: dict[int, tuple[int, torch.Tensor]] = {}  # width -> (first draw, draws)
 
     @property
     def batch_size(self) -> int:
         """Number of rows ``B``."""
         return self._row_key.shape[0]
 
-    def _bits(self, extra: int, counter: int | None = None) -> torch.Tensor:
-        """32-bit integers of shape ``[B]`` or ``[B, extra]`` for draw number ``counter``.
-
-        Without ``counter`` the next draw is taken and the counter advances.
-        """
-        if counter is None:
-            counter = self.counter
-            self.counter += 1
-        base = _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
+    def _bits(self, extra: int, first: int, k: int = 1) -> torch.Tensor:
+        """32-bit integers ``[k, B]`` or ``[k, B, extra]``: draws ``first .. first + k - 1``."""
+        bases = [_mix32_int(c * 0x9E3779B1 + 0x7F4A7C15) for c in range(first, first + k)]
         if extra == 0:
-            return mix32(self._row_key ^ base)
+            keys = torch.tensor(bases, dtype=torch.int64, device=self.device)
+            return mix32(self._row_key[None, :] ^ keys[:, None])
         # the column keys are a handful of numbers: hashed in Python, one tensor
-        cols = [_mix32_int(k + base) for k in range(extra)]
+        cols = [[_mix32_int(j + base) for j in range(extra)] for base in bases]
         cols = torch.tensor(cols, dtype=torch.int64, device=self.device)
-        return mix32(self._row_key[:, None] ^ cols)
+        return mix32(self._row_key[None, :, None] ^ cols[:, None, :])
 
     def uniform(self, extra: int = 0, counter: int | None = None) -> torch.Tensor:
         """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).
 
-        ``counter`` reads a given draw number instead of the next one (see ``reserve``).
+        ``counter`` reads a given draw number instead of the next one (see ``reserve``). The
+        next draws of one width are computed ahead in blocks (up to ``AHEAD``, at most about
+        ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number alone, so a
+        block gives exactly what the draws one by one would, in one set of ops.
         """
-        return (self._bits(extra, counter) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+        if counter is None:
+            counter = self.counter
+            self.counter += 1
+        block = self._ahead.get(extra)
+        if block is None or not block[0] <= counter < block[0] + block[1].shape[0]:
+            per_draw = self.batch_size * max(extra, 1)
+            k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
+            bits = self._bits(extra, counter, k)
+            block = (counter, (bits >> 8).to(torch.float32) * (1.0 / 16777216.0))
+            self._ahead[extra] = block
+        return block[1][counter - block[0]]
 
     def reserve(self, n: int) -> int:
         """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
@@ -124,12 +138,14 @@ class BatchRNG:
         """The streams of ``rows`` only, at the same counter: each row draws what it drew here."""
         sub = copy.copy(self)
         sub._row_key = self._row_key[rows]
+        sub._ahead = {}
         return sub
 
     def to(self, device: torch.device | str) -> BatchRNG:
         """The same streams, drawn on ``device`` (the draws do not depend on the device)."""
         self.device = torch.device(device)
         self._row_key = self._row_key.to(self.device)
+        self._ahead = {}
         return self
 
     def state_dict(self) -> dict[str, int]:

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from hrl_torch.graph import TaskGraph
-from hrl_torch.ops import lookup
+from hrl_torch.ops import columns, lookup
 
 
 class TableLayout(nn.Module):
@@ -66,89 +66,23 @@ class TableLayout(nn.Module):
         return self.table_is_primitive.nonzero().squeeze(1)
 
 
-class TableBank(nn.Module):
-    """One kind of table for all table nodes and all ``P`` learners, stored flat.
+class _FlatStore(nn.Module):
+    """A flat float buffer ``store`` of tables, with its same-step update rule.
 
-    ``store`` holds the ``P * total`` entries followed by one *sentinel* entry that stays 0:
-    reads and writes of masked rows are aimed at it, so a masked read is a single
-    ``index_select``.
-
-    Args:
-        n_learners: population size ``P``.
-        n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
-        n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
-        init: initial value of every entry.
+    ``store`` holds ``P * stride`` entries (learner ``p``'s block first at ``p * stride``)
+    followed by one *sentinel* entry that stays 0: reads and writes of masked rows are aimed
+    at it, so a masked read is a single ``index_select``.
     """
 
     #: above this many entries, same-step updates are grouped with ``unique`` (no scratch)
     SCRATCH_LIMIT = 1 << 22
 
-    def __init__(
-        self, n_learners: int, n_states: torch.Tensor, n_cols: torch.Tensor, init: float = 0.0
-    ) -> None:
-        super().__init__()
-        sizes = n_states.long() * n_cols.long()
-        offset = torch.cumsum(sizes, 0) - sizes
-        self.total = max(int(sizes.sum()), 1)
-        self.n_learners = n_learners
-        self.sentinel = n_learners * self.total
-        self.register_buffer("offset", offset, persistent=False)
-        self.register_buffer("n_cols", n_cols.long(), persistent=False)
-        store = torch.full((self.sentinel + 1,), float(init))
-        store[-1] = 0.0
+    def _init_store(self, n_learners: int, stride: int, fill: torch.Tensor) -> None:
+        self.n_learners, self.stride = n_learners, stride
+        self.sentinel = n_learners * stride
+        store = torch.cat([fill.repeat(n_learners), torch.zeros(1)])
         self.register_buffer("store", store)
-        self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
         self._scratch = torch.zeros(2, 0)
-
-    @property
-    def data(self) -> torch.Tensor:
-        """The tables as ``[P, total]`` (a view of ``store``)."""
-        return self.store[: self.sentinel].view(self.n_learners, self.total)
-
-    def index(
-        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, col: torch.Tensor
-    ) -> torch.Tensor:
-        """Flat indices into ``store``; all arguments broadcast together."""
-        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
-        return learner * self.total + offset + state * n_cols + col
-
-    def row_index(
-        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, width: int
-    ) -> torch.Tensor:
-        """Flat indices of whole rows: shape ``learner.shape + (width,)``."""
-        cols = torch.arange(width, device=self.store.device)
-        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
-        base = learner * self.total + offset + state * n_cols
-        return base.unsqueeze(-1) + cols
-
-    def read(self, flat_index: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
-        """Values at flat indices; entries where ``valid`` is False read as 0."""
-        if valid is not None:
-            flat_index = torch.where(valid, flat_index, self.sentinel)
-        return self.store.index_select(0, flat_index.reshape(-1)).view(flat_index.shape)
-
-    @property
-    def save_store(self) -> bool:
-        """Whether ``store`` is in the state dict (False when heads save views of it)."""
-        return "store" not in self._non_persistent_buffers_set
-
-    @save_store.setter
-    def save_store(self, value: bool) -> None:
-        if value:
-            self._non_persistent_buffers_set.discard("store")
-        else:
-            self._non_persistent_buffers_set.add("store")
-
-    def block(self, table: int) -> torch.Tensor:
-        """The ``[P, n_states, n_cols]`` tables of one node for every learner (a view)."""
-        start, n_states, n_cols = self._blocks[table]
-        return self.data[:, start : start + n_states * n_cols].view(
-            self.n_learners, n_states, n_cols
-        )
-
-    def view(self, table: int, learner: int = 0) -> torch.Tensor:
-        """The ``[n_states, n_cols]`` table of one node and learner (a view, for inspection)."""
-        return self.block(table)[learner]
 
     def update(
         self,
@@ -156,20 +90,24 @@ class TableBank(nn.Module):
         target: torch.Tensor,
         alpha: torch.Tensor | float,
         mask: torch.Tensor,
-    ) -> None:
+    ) -> torch.Tensor:
         """Move entries toward their targets: ``W <- (1-a)^n W + (1-(1-a)^n) mean(target)``.
 
         Every entry hit by ``n`` rows in this batch takes the ``n`` same-step updates at once,
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
         Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
+        Returns each row's entry before the update ``[R]`` (0 for masked rows).
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
-        weighted = torch.stack([mask.to(flat.dtype), torch.nan_to_num(target)]) * mask
+        weight = mask.to(flat.dtype)
+        weighted = torch.stack([weight, torch.nan_to_num(target)]) * weight
         n, total = self._count_and_sum(index, weighted)
         keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
         mean = total / n.clamp_min(1.0)
-        flat.index_put_((index,), mean + keep * (flat.index_select(0, index) - mean))
+        old = flat.index_select(0, index)
+        flat.index_put_((index,), mean + keep * (old - mean))
+        return old
 
     def _count_and_sum(self, index, weighted) -> tuple[torch.Tensor, torch.Tensor]:
         """Per row: how many rows hit its entry, and the sum of their values (order-free).
@@ -190,14 +128,153 @@ class TableBank(nn.Module):
         self._scratch.index_fill_(1, index, 0.0)
         return n, total
 
+    @property
+    def save_store(self) -> bool:
+        """Whether ``store`` is in the state dict (False when heads save views of it)."""
+        return "store" not in self._non_persistent_buffers_set
+
+    @save_store.setter
+    def save_store(self, value: bool) -> None:
+        if value:
+            self._non_persistent_buffers_set.discard("store")
+        else:
+            self._non_persistent_buffers_set.add("store")
+
+
+class TableBank(_FlatStore):
+    """One kind of table for all table nodes and all ``P`` learners, stored flat.
+
+    Node ``t`` of learner ``p`` owns the entries ``p * stride + offset[t]`` onward
+    (``n_states[t] * n_cols[t]`` of them, row-major). A bank made by ``TableSet`` shares the
+    set's store with the set's other kinds (``stride`` then counts every kind's entries and
+    ``offset`` includes the bank's place in the learner's block); a plain bank has its own
+    (``stride == total``).
+
+    Args:
+        n_learners: population size ``P``.
+        n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
+        n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
+        init: initial value of every entry.
+    """
+
+    def __init__(
+        self, n_learners: int, n_states: torch.Tensor, n_cols: torch.Tensor, init: float = 0.0
+    ) -> None:
+        super().__init__()
+        sizes = n_states.long() * n_cols.long()
+        offset = torch.cumsum(sizes, 0) - sizes
+        self.total = max(int(sizes.sum()), 1)
+        self.init = float(init)
+        self.register_buffer("offset", offset, persistent=False)
+        self.register_buffer("n_cols", n_cols.long(), persistent=False)
+        self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
+        self._set: TableSet | None = None
+        self.base = 0
+        self._init_store(n_learners, self.total, torch.full((self.total,), self.init))
+
+    def _join(self, tables: TableSet, base: int) -> None:
+        """Keep this bank's entries in ``tables``' store, from ``base`` in each learner block."""
+        del self._buffers["store"]
+        object.__setattr__(self, "_set", tables)  # the set owns the bank, not the reverse
+        self.base = base
+        self.offset += base
+        self._blocks = [(start + base, n, c) for start, n, c in self._blocks]
+        self.stride, self.sentinel = tables.stride, tables.sentinel
+
+    def __getattr__(self, name: str):
+        if name == "store" and self.__dict__.get("_set") is not None:
+            return self._set.store
+        return super().__getattr__(name)
+
+    @property
+    def save_store(self) -> bool:
+        """Whether the store is in the state dict (the set's, when shared)."""
+        if self._set is not None:
+            return self._set.save_store
+        return _FlatStore.save_store.fget(self)
+
+    @save_store.setter
+    def save_store(self, value: bool) -> None:
+        _FlatStore.save_store.fset(self._set if self._set is not None else self, value)
+
+    def update(self, flat_index, target, alpha, mask) -> torch.Tensor:
+        """``_FlatStore.update`` on this bank's store (the set's, when shared)."""
+        if self._set is not None:
+            return self._set.update(flat_index, target, alpha, mask)
+        return super().update(flat_index, target, alpha, mask)
+
+    @property
+    def data(self) -> torch.Tensor:
+        """The tables as ``[P, total]`` (a view of ``store``)."""
+        rows = self.store[: self.sentinel].view(self.n_learners, self.stride)
+        return rows[:, self.base : self.base + self.total]
+
+    def index(
+        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, col: torch.Tensor
+    ) -> torch.Tensor:
+        """Flat indices into ``store``; all arguments broadcast together."""
+        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
+        return learner * self.stride + offset + state * n_cols + col
+
+    def row_index(
+        self, learner: torch.Tensor, table: torch.Tensor, state: torch.Tensor, width: int
+    ) -> torch.Tensor:
+        """Flat indices of whole rows: shape ``learner.shape + (width,)``."""
+        cols = torch.arange(width, device=self.store.device)
+        offset, n_cols = lookup(self.offset, table), lookup(self.n_cols, table)
+        base = learner * self.stride + offset + state * n_cols
+        return base.unsqueeze(-1) + cols
+
+    def read(self, flat_index: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+        """Values at flat indices; entries where ``valid`` is False read as 0."""
+        if valid is not None:
+            flat_index = torch.where(valid, flat_index, self.sentinel)
+        return self.store.index_select(0, flat_index.reshape(-1)).view(flat_index.shape)
+
+    def block(self, table: int) -> torch.Tensor:
+        """The ``[P, n_states, n_cols]`` tables of one node for every learner (a view)."""
+        start, n_states, n_cols = self._blocks[table]
+        rows = self.store[: self.sentinel].view(self.n_learners, self.stride)
+        return rows[:, start : start + n_states * n_cols].view(self.n_learners, n_states, n_cols)
+
+    def view(self, table: int, learner: int = 0) -> torch.Tensor:
+        """The ``[n_states, n_cols]`` table of one node and learner (a view, for inspection)."""
+        return self.block(table)[learner]
+
+
+class TableSet(_FlatStore):
+    """Several banks of one learner in one store, so one ``update`` writes any mix of them.
+
+    Learner ``p``'s block holds every bank's entries one after the other; a bank's flat
+    indices are valid indices of the set's store, so the rows of a batch aimed at different
+    banks (``C`` of the finished children and ``V`` of the primitive, say) are one update.
+    The banks are this module's children (``tables.C``, ...); the learner keeps them as
+    attributes too.
+
+    Args:
+        banks: the banks by name, each made alone first (their ``init`` is kept).
+    """
+
+    def __init__(self, **banks: TableBank) -> None:
+        super().__init__()
+        first = next(iter(banks.values()))
+        fills = [bank.store[: bank.total] for bank in banks.values()]  # one learner's block
+        self._init_store(first.n_learners, sum(b.total for b in banks.values()), torch.cat(fills))
+        self.banks = nn.ModuleDict(banks)
+        start = 0
+        for bank in banks.values():
+            bank._join(self, start)
+            start += bank.total
+
 
 class EvalPlan(nn.Module):
     """Static indices of a layout's bottom-up evaluation, computed once.
 
     The non-primitive tables in bottom-up order (``order [Tc]``, leaves' parents first), so
     that each height group is a contiguous slice ``bounds[k] = (start, end)``: a learner reads
-    the rows of all of them at once (one ``index_select`` per bank) and evaluates group by
-    group on slices.
+    the rows of all of them at once (one ``index_select`` per bank, ``rows_at``) and
+    evaluates group by group (``sizes`` splits them; ``group_ids[k]`` are the group's table
+    ids, ``group_children[k]`` its children's table ids flattened ``[G * A]``).
 
     Buffers: ``order [Tc]`` table ids, ``node [Tc]`` their graph nodes, ``child_table [Tc, A]``
     the children's table ids (padding: 0), ``child_valid [Tc, A]``, ``inst_pos [I]`` the
@@ -205,27 +282,36 @@ class EvalPlan(nn.Module):
     primitive tables and ``prim_node [Tp]`` their nodes; ``chooser_pos [Ic]`` the table
     positions of the choosing instances (``graph.choosers``). With ``keep [T]`` only those
     non-primitive tables are planned (the other instances' positions read 0).
+
+    On a tabulated graph (``TaskGraph.tabulate``) the per-state part of ``rows_at`` (each
+    table's abstract state, availability and deadness) is looked up too, from tables made
+    once per bank layout.
     """
+
+    #: largest ``states x tables x children`` looked up per state (else computed per step)
+    TABULATE_LIMIT = 1 << 22
 
     def __init__(
         self, graph: TaskGraph, layout: TableLayout, keep: torch.Tensor | None = None
     ) -> None:
         super().__init__()
+        object.__setattr__(self, "graph", graph)  # not a child module: the learner's
         groups = layout.groups[1:]
         if keep is not None:  # only the tables ``keep [T]`` (e.g. a hybrid's value nodes)
             groups = [ids[keep[ids]] for ids in groups]
             groups = [ids for ids in groups if len(ids)]
         order = torch.cat(groups) if groups else torch.zeros(0, dtype=torch.long)
-        sizes = [len(g) for g in groups]
-        starts = [sum(sizes[:k]) for k in range(len(sizes))]
-        self.bounds = [(s, s + n) for s, n in zip(starts, sizes, strict=True)]
+        self.sizes = [len(g) for g in groups]
+        starts = [sum(self.sizes[:k]) for k in range(len(self.sizes))]
+        self.bounds = [(s, s + n) for s, n in zip(starts, self.sizes, strict=True)]
         pos = torch.zeros(layout.n_tables, dtype=torch.long)
         pos[order] = torch.arange(len(order))
         prims = layout.groups[0]
+        child_table = layout.table_children[order].clamp_min(0)
         for name, value in (
             ("order", order),
             ("node", layout.table_node[order]),
-            ("child_table", layout.table_children[order].clamp_min(0)),
+            ("child_table", child_table),
             ("child_valid", layout.table_child_valid[order]),
             ("inst_pos", pos[layout.inst_table]),
             ("prims", prims),
@@ -233,10 +319,25 @@ class EvalPlan(nn.Module):
         ):
             self.register_buffer(name, value, persistent=False)
         self.register_buffer("cols", torch.arange(layout.max_children), persistent=False)
+        for k, (start, end) in enumerate(self.bounds):
+            self.register_buffer(f"group_ids_{k}", order[start:end].clone(), persistent=False)
+            kids = child_table[start:end].reshape(-1).clone()
+            self.register_buffer(f"group_children_{k}", kids, persistent=False)
         # the table position of every choosing instance (``graph.choosers``)
         chooser_pos = pos[layout.inst_table[graph.choosers]]
         self.register_buffer("chooser_pos", chooser_pos, persistent=False)
         self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._tabulated: dict[int, tuple] = {}
+
+    @property
+    def group_ids(self) -> list[torch.Tensor]:
+        """Table ids of each height group, bottom-up."""
+        return [getattr(self, f"group_ids_{k}") for k in range(len(self.bounds))]
+
+    @property
+    def group_children(self) -> list[torch.Tensor]:
+        """Children's table ids of each height group, ``[G * A]`` (padding: 0)."""
+        return [getattr(self, f"group_children_{k}") for k in range(len(self.bounds))]
 
     def offsets(self, bank: TableBank) -> tuple[torch.Tensor, torch.Tensor]:
         """``(offset [Tc], n_cols [Tc])`` of ``bank``'s blocks in plan order (cached)."""
@@ -253,5 +354,51 @@ class EvalPlan(nn.Module):
         ``learner [B]``; ``state [B, Tc]`` the tables' abstract states.
         """
         offset, n_cols = self.offsets(bank)
-        base = (learner * bank.total)[:, None] + offset + state * n_cols
+        base = (learner * bank.stride)[:, None] + offset + state * n_cols
         return base[..., None] + self.cols
+
+    def rows_at(self, ctx, bank: TableBank):
+        """``(available [B, Tc, A], dead [B, Tc], index [B, Tc, A])`` of the tables at ``ctx``.
+
+        ``index`` holds the flat indices of the rows of ``bank``'s planned tables; entries of
+        children that are not available point anywhere in the store (read them only masked).
+        ``dead``: the table's state is terminal for it, or no child is available.
+        """
+        per_state = self._per_state(bank) if ctx.table_row is not None else None
+        if per_state is not None:
+            available, dead, index = (t.index_select(0, ctx.table_row) for t in per_state)
+            return available, dead, index + (ctx.learner * bank.stride)[:, None, None]
+        available = columns(ctx.available, self.node)  # padding slots are never available
+        dead = columns(ctx.blocked, self.node) | ~available.any(-1)
+        index = self.row_index(bank, ctx.learner, columns(ctx.abstract, self.node))
+        return available, dead, index
+
+    def _per_state(self, bank: TableBank):
+        """``rows_at``'s fields for every state of the tabulated graph (learner 0), cached."""
+        g = self.graph
+        key = (id(bank), id(g.tab_abstract), g.tab_abstract.device)
+        if key not in self._tabulated:
+            per_state = None
+            if g.tab_abstract.shape[0] * self.child_table.numel() <= self.TABULATE_LIMIT:
+                available = g.tab_available[:, self.node]
+                dead = g.tab_blocked[:, self.node] | ~available.any(-1)
+                offset, n_cols = self.offsets(bank)
+                index = (offset + g.tab_abstract[:, self.node] * n_cols)[..., None] + self.cols
+                per_state = (available, dead, index)
+            self._tabulated[key] = per_state
+        return self._tabulated[key]
+
+    def prim_index_at(self, ctx, bank: TableBank) -> torch.Tensor:
+        """Flat indices ``[B, Tp]`` of the primitive tables' entries of ``bank`` at ``ctx``."""
+        if ctx.table_row is not None:
+            g = self.graph
+            key = (id(bank), "prims", id(g.tab_abstract), g.tab_abstract.device)
+            per_state = self._tabulated.get(key)
+            if per_state is None:
+                state = g.tab_abstract[:, self.prim_node]
+                offset, n_cols = bank.offset[self.prims], bank.n_cols[self.prims]
+                per_state = offset + state * n_cols
+                self._tabulated[key] = per_state
+            return per_state.index_select(0, ctx.table_row) + (ctx.learner * bank.stride)[:, None]
+        state = columns(ctx.abstract, self.prim_node)
+        return bank.index(ctx.learner[:, None], self.prims, state, 0)

@@ -36,3 +36,26 @@ def test_counter_round_trips_through_state_dict():
     x = r.uniform()
     r.load_state_dict(state)
     assert torch.equal(r.uniform(), x)
+
+
+def test_draws_computed_ahead_in_blocks_equal_draws_one_at_a_time():
+    # uniform() computes the next draws of a width in blocks; interleaved widths, explicit
+    # counters and a restored counter must read exactly what single draws give
+    one, ahead = BatchRNG([4, 8], 3, "b"), BatchRNG([4, 8], 3, "b")
+    one.AHEAD = 1
+    ahead.AHEAD = 5
+    for step in range(23):
+        for extra in (0, 7) if step % 3 else (7, 0, 2):
+            assert torch.equal(one.uniform(extra), ahead.uniform(extra))
+        assert torch.equal(one.integers(5, 2), ahead.integers(5, 2))
+    first = one.reserve(4)
+    assert ahead.reserve(4) == first
+    for c in (first + 2, first, first + 3):
+        assert torch.equal(one.uniform(3, counter=c), ahead.uniform(3, counter=c))
+    state = ahead.state_dict()
+    later = [ahead.uniform(7) for _ in range(4)]
+    ahead.load_state_dict(state)
+    assert all(torch.equal(x, ahead.uniform(7)) for x in later)
+    rows = torch.tensor([5, 0])
+    one.load_state_dict(ahead.state_dict())
+    assert torch.equal(one.uniform(2)[rows], ahead.subset(rows).uniform(2))

@@ -41,7 +41,6 @@ from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.three_part import ThreePartLearner
-from hrl_torch.ops import columns
 
 
 class GainEstimate(nn.Module):
@@ -165,6 +164,7 @@ class RARLearner(TabularLearner):
         self.continuous = continuous
         self.C = self.completion_bank(init)
         self.V = self.primitive_bank()
+        self.share_store(C=self.C, V=self.V)
         self.attach_heads(C=self.C, V=self.V)
         self.gains = GainEstimate(n_learners, self.layout.n_tables, gain_prior)
 
@@ -178,10 +178,10 @@ class RARLearner(TabularLearner):
         available, dead, (c,) = self.composite_rows(ctx, self.C)
         value = self.primitive_values(ctx, self.V)
         q_rows = []
-        for part, ids in self.groups():
-            q = columns(value, self.plan.child_table[part]) + c[:, part]
-            best = torch.where(available[:, part], q, -torch.inf).amax(-1)
-            value.index_copy_(1, ids, best.masked_fill(dead[:, part], 0.0))
+        for ids, kids, blocked, gone, c_part in self.groups(~available, dead, c):
+            q = value.index_select(1, kids).view(c_part.shape) + c_part
+            best = q.masked_fill(blocked, -torch.inf).amax(-1)
+            value.index_copy_(1, ids, best.masked_fill(gone, 0.0))
             q_rows.append(q)
         ctx.values["H"] = value
         ctx.values["Q"] = torch.cat(q_rows, 1)

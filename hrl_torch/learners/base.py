@@ -21,9 +21,9 @@ from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
-from hrl_torch.ops import at_rows, columns, lookup
+from hrl_torch.ops import at_rows, lookup
 from hrl_torch.rng import BatchRNG
-from hrl_torch.tables import EvalPlan, TableBank, TableLayout
+from hrl_torch.tables import EvalPlan, TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
 
@@ -113,27 +113,33 @@ class TabularLearner(Learner):
 
         ``available [B, Tc, A]``: children available (padding False); ``dead [B, Tc]``: the
         table's state is terminal for it or nothing is available (its value is 0); each bank's
-        rows ``[B, Tc, A]`` (unavailable entries read 0). Tables in ``self.plan`` order.
+        rows ``[B, Tc, A]`` (tables in ``self.plan`` order). The entries of children that are
+        not available hold any finite value: read them masked by ``available``. The banks
+        share one layout (completion banks of this learner).
         """
-        plan = self.plan
-        available = columns(ctx.available, plan.node)  # padding slots are never available
-        dead = columns(ctx.blocked, plan.node) | ~available.any(-1)
-        state = columns(ctx.abstract, plan.node)
-        rows = [bank.read(plan.row_index(bank, ctx.learner, state), available) for bank in banks]
+        available, dead, index = self.plan.rows_at(ctx, banks[0])
+        rows = []
+        for bank in banks:
+            at = index if bank.base == banks[0].base else index + (bank.base - banks[0].base)
+            flat = at.clamp_max(bank.sentinel).view(-1)  # a padding slot may run off the end
+            rows.append(bank.store.index_select(0, flat).view(index.shape))
         return available, dead, rows
 
     def primitive_values(self, ctx: StepContext, bank: TableBank) -> torch.Tensor:
         """``[B, T]``: ``bank``'s values of the primitive tables at ``ctx`` (0 elsewhere)."""
-        plan, lay = self.plan, self.layout
-        state = columns(ctx.abstract, plan.prim_node)
-        idx = bank.index(ctx.learner[:, None], plan.prims, state, 0)
-        value = torch.zeros(ctx.abstract.shape[0], lay.n_tables, device=ctx.abstract.device)
-        return value.index_copy_(1, plan.prims, bank.read(idx))
+        index = self.plan.prim_index_at(ctx, bank)
+        values = bank.store.index_select(0, index.view(-1)).view(index.shape)
+        value = torch.zeros(index.shape[0], self.layout.n_tables, device=index.device)
+        return value.index_copy_(1, self.plan.prims, values)
 
-    def groups(self):
-        """``(slice into plan order, table ids [G])`` per height group, bottom-up."""
-        for start, end in self.plan.bounds:
-            yield slice(start, end), self.plan.order[start:end]
+    def groups(self, *per_table: torch.Tensor):
+        """Per height group, bottom-up: ``(table ids [G], children's ids [G * A], parts...)``.
+
+        ``per_table``: tensors ``[B, Tc, ...]`` in plan order, split into the groups' parts.
+        """
+        plan = self.plan
+        parts = [x.split(plan.sizes, 1) for x in per_table]
+        yield from zip(plan.group_ids, plan.group_children, *parts, strict=True)
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``."""
@@ -148,6 +154,46 @@ class TabularLearner(Learner):
         """Flat indices into ``bank`` of ``(instance's table, state, col)`` (broadcast)."""
         table = lookup(self.layout.inst_table, inst.clamp_min(0))
         return bank.index(learner, table, state, col)
+
+    def level_table(self, level) -> torch.Tensor:
+        """The table of every level of a transition batch ``[B, D]``.
+
+        A per-subtask table is the level's node; a per-instance one its instance.
+        """
+        return level["inst"].clamp_min(0) if self.layout.per_instance else level["node"]
+
+    def share_store(self, **banks: TableBank) -> None:
+        """Keep ``banks`` in one store (``self.tables``) so that one update reaches them all.
+
+        ``entry_index`` then gives each level's entry of its own table in one index: ``C`` of
+        the node whose child ended, ``V`` of the primitive that ran (the first two banks).
+        """
+        self.tables = TableSet(**banks)
+        composite, primitive = list(banks.values())[:2]
+        prim = self.layout.table_is_primitive
+        offset = torch.where(prim, primitive.offset, composite.offset)
+        self.register_buffer("entry_offset", offset, persistent=False)
+        n_cols = torch.where(prim, primitive.n_cols, composite.n_cols)
+        self.register_buffer("entry_cols", n_cols, persistent=False)
+
+    def entry_index(self, batch, table: torch.Tensor) -> torch.Tensor:
+        """``[B, D]`` flat indices of each level's entry at its start state and child.
+
+        A non-primitive level's ``C(i, s, a)``, the primitive level's ``V(a, s)`` (its child
+        slot is 0); ``share_store`` made the layout.
+        """
+        level = batch[LEVEL]
+        base = self.learner_base(batch["learner"], self.tables.stride)
+        offset, n_cols = torch.take(self.entry_offset, table), torch.take(self.entry_cols, table)
+        return base + offset + level["state"] * n_cols + level["child"]
+
+    def learner_base(self, learner: torch.Tensor, stride: int) -> torch.Tensor:
+        """``learner[:, None] * stride`` (kept while the rows' learners are the same tensor)."""
+        cached = self.__dict__.get("_base_cache")
+        if cached is None or cached[0] is not learner or cached[1] != stride:
+            cached = (learner, stride, learner[:, None] * stride)
+            self.__dict__["_base_cache"] = cached
+        return cached[2]
 
     def attach_heads(self, **banks: TableBank) -> None:
         """Heads (``self.heads``) naming every table node's block of each of ``banks``."""

@@ -109,7 +109,8 @@ class HHLearner(TabularLearner):
         outcome = torch.arange(self.width, device=dev)
         child = torch.arange(lay.max_children, device=dev)
         q_rows = []
-        for part, ids in self.groups():
+        for (start, end), ids in zip(plan.bounds, plan.group_ids, strict=True):
+            part = slice(start, end)
             nodes = plan.node[part]
             available = columns(ctx.available, nodes)
             n_out = self.outcomes[ids][None, :, None]

@@ -23,10 +23,10 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule, masked_argmax
+from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, discount, lookup
+from hrl_torch.ops import discount
 
 
 class MaxQLearner(TabularLearner):
@@ -63,8 +63,13 @@ class MaxQLearner(TabularLearner):
         self.internal = bool(graph.internal_nodes)
         self.C = self.completion_bank(init)
         c_int_init = init if init_internal is None else init_internal
-        self.C_int = self.completion_bank(c_int_init) if self.internal else self.C
         self.V = self.primitive_bank()
+        if self.internal:
+            self.C_int = self.completion_bank(c_int_init)
+            self.share_store(C=self.C, V=self.V, C_int=self.C_int)
+        else:
+            self.C_int = self.C
+            self.share_store(C=self.C, V=self.V)
         internal = {"C_int": self.C_int} if self.internal else {}
         self.attach_heads(C=self.C, **internal, V=self.V)
 
@@ -79,18 +84,18 @@ class MaxQLearner(TabularLearner):
         value = self.primitive_values(ctx, self.V)
         value_int = value.clone() if self.internal else value
         q_rows = []
-        for part, ids in self.groups():
-            child_v = columns(value, self.plan.child_table[part])
-            q_ext = child_v + rows[0][:, part]
-            q_int = child_v + rows[-1][:, part] if self.internal else q_ext
-            ok, gone = available[:, part], dead[:, part]
+        for ids, kids, blocked, gone, c, *c_int in self.groups(~available, dead, *rows):
+            child_v = value.index_select(1, kids).view(c.shape)
+            q_ext = child_v + c
             if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
-                best = masked_argmax(q_int, ok).unsqueeze(-1)
+                q_int = child_v + c_int[0]
+                best = q_int.masked_fill(blocked, -torch.inf).argmax(-1, keepdim=True)
                 v_ext = q_ext.gather(-1, best).squeeze(-1)
                 v_int = q_int.gather(-1, best).squeeze(-1)
                 value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
             else:
-                v_ext = torch.where(ok, q_ext, -torch.inf).amax(-1)
+                q_int = q_ext
+                v_ext = q_ext.masked_fill(blocked, -torch.inf).amax(-1)
             value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
             q_rows.append(q_int)
         ctx.values["V"] = value
@@ -98,57 +103,65 @@ class MaxQLearner(TabularLearner):
         ctx.values["Q"] = torch.cat(q_rows, 1)
 
     # ------------------------------------------------------------------ updates
-    @staticmethod
-    def targets(discount, internal, terminal, pseudo, v_next, v_next_int):
-        """External and internal completion targets (all arguments broadcast together)."""
-        external = discount * v_next.masked_fill(terminal, 0.0)
-        internal = internal + discount * torch.where(terminal, pseudo, v_next_int)
-        return external, internal
+    def targets(self, level, terminal, v_next, v_next_int):
+        """External and internal completion targets ``[B, D]`` (Dietterich's Table 4).
+
+        ``gamma^N V(i, s')`` and ``R~ + gamma^N [R~_i(s') at a terminal s', else V~(i, s')]``
+        (a terminal ``s'`` has no continuation).
+        """
+        external = v_next.masked_fill(terminal, 0.0)
+        factor = None if self.gamma == 1.0 else discount(self.gamma, level["duration"])
+        if factor is not None:
+            external = factor * external
+        if not self.internal:  # every internal reward is 0: the same target
+            return external, external
+        internal = torch.where(terminal, level["pseudo_reward"], v_next_int)
+        if factor is not None:
+            internal = factor * internal
+        return external, level["internal_reward"] + internal
 
     def update(self, batch, step: int) -> None:
-        """Dietterich's MAXQ-Q updates for every finished child and primitive in ``batch``."""
-        level, prim, values = batch[LEVEL], batch[PRIMITIVE], batch["values"]
+        """Dietterich's MAXQ-Q updates for every finished child and primitive in ``batch``.
+
+        One update of the shared store: ``C`` (and ``C~``) of every level whose child finished,
+        ``V(a, s) <- (1-alpha) V + alpha r`` of the primitive on its level (``ran``).
+        """
+        level, values = batch[LEVEL], batch["values"]
         alpha = self.alpha(step)
-        learner = batch["learner"][:, None]
-        table = lookup(self.layout.inst_table, level["inst"].clamp_min(0))
-        terminal = level["terminal"]
+        table = self.level_table(level)
+        terminal, ran = level["terminal"], level["ran"]
         valid = level["valid"] & (level["child_done"] | terminal)
         v_next = values["V"].gather(1, table)
         v_next_int = values["V_int"].gather(1, table) if self.internal else v_next
-        target, target_int = self.targets(
-            discount(self.gamma, level["duration"]),
-            level["internal_reward"],
-            terminal,
-            level["pseudo_reward"],
-            v_next,
-            v_next_int,
-        )
-        idx = self.C.index(learner, table, level["state"], level["child"])
-        self.record_td(learner, level["node"], target_int - self.C_int.read(idx, valid), valid)
-        self.C.update(idx.view(-1), target.view(-1), alpha, valid.view(-1))
+        target, target_int = self.targets(level, terminal, v_next, v_next_int)
+        target = torch.where(ran, batch[PRIMITIVE]["reward"][:, None], target)
+        index = self.entry_index(batch, table)
+        mask = valid | ran
+        if self.internal:  # C~ sits at a fixed distance from C in every learner's block
+            index = torch.cat([index, index + (self.C_int.base - self.C.base)], 1)
+            target = torch.cat([target, target_int], 1)
+            mask = torch.cat([mask, valid], 1)
+        old = self.tables.update(index.view(-1), target.view(-1), alpha, mask.view(-1))
         if self.internal:
-            self.C_int.update(idx.view(-1), target_int.view(-1), alpha, valid.view(-1))
+            old = old.view(index.shape)[:, valid.shape[1] :]
+        learner = batch["learner"][:, None]
+        self.record_td(learner, level["node"], target_int - old.view(valid.shape), valid)
         if self.all_states and "visited_state" in level.keys():
-            # every state s_k the child passed through gets the target discounted from s_k
-            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
-            remaining = level["duration"][..., None] - level["visited_time"]
-            ext, internal = self.targets(
-                discount(self.gamma, remaining),
-                torch.zeros_like(remaining),
-                terminal[..., None],
-                level["pseudo_reward"][..., None],
-                v_next[..., None],
-                v_next_int[..., None],
-            )
-            vidx = self.C.index(
-                learner[..., None],
-                table[..., None],
-                level["visited_state"],
-                level["child"][..., None],
-            )
-            self.C.update(vidx.reshape(-1), ext.reshape(-1), alpha, late.reshape(-1))
-            if self.internal:
-                self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
+            self._update_visited(batch, table, terminal, valid, v_next, v_next_int, alpha)
 
-        pidx = self.table_index(self.V, batch["learner"], prim["inst"], prim["state"], 0)
-        self.V.update(pidx, prim["reward"], alpha, prim["valid"])
+    def _update_visited(self, batch, table, terminal, valid, v_next, v_next_int, alpha) -> None:
+        """All-states updating: each state ``s_k`` the child passed gets the target from ``s_k``."""
+        level, learner = batch[LEVEL], batch["learner"][:, None]
+        late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
+        remaining = level["duration"][..., None] - level["visited_time"]
+        factor = discount(self.gamma, remaining)
+        external = factor * v_next[..., None].masked_fill(terminal[..., None], 0.0)
+        internal = factor * torch.where(
+            terminal[..., None], level["pseudo_reward"][..., None], v_next_int[..., None]
+        )
+        vidx = self.C.index(
+            learner[..., None], table[..., None], level["visited_state"], level["child"][..., None]
+        )
+        self.C.update(vidx.reshape(-1), external.reshape(-1), alpha, late.reshape(-1))
+        if self.internal:
+            self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))

@@ -31,11 +31,11 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule, masked_argmax
+from hrl_torch.executor import LEVEL
+from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, lookup
+from hrl_torch.ops import columns
 
 
 def three_part_targets(
@@ -98,6 +98,7 @@ class ThreePartLearner(TabularLearner):
         self.C = self.completion_bank(init)
         self.CE = self.completion_bank(init if ce_init is None else ce_init)
         self.V = self.primitive_bank()
+        self.share_store(C=self.C, V=self.V, CE=self.CE)
         self.attach_heads(C=self.C, CE=self.CE, V=self.V)
         depth, parent = graph.inst_depth, graph.inst_parent
         composite = ~graph.node_is_primitive[graph.inst_node]
@@ -130,14 +131,12 @@ class ThreePartLearner(TabularLearner):
         ce_best = torch.zeros_like(value)
         full = torch.zeros_like(value)
         q_rows = []
-        for part, ids in self.groups():
-            projected = columns(value, self.plan.child_table[part]) + c[:, part]  # Eq. 4.11
-            ce_part = ce[:, part]
+        for ids, kids, blocked, gone, c_part, ce_part in self.groups(~available, dead, c, ce):
+            projected = value.index_select(1, kids).view(c_part.shape) + c_part  # Eq. 4.11
             q = projected + ce_part  # Eq. 4.7
-            best = masked_argmax(q, available[:, part]).unsqueeze(-1)
-            gone = dead[:, part]
+            best = q.masked_fill(blocked, -torch.inf).argmax(-1, keepdim=True)
             for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
-                out.index_copy_(1, ids, torch.where(gone, 0.0, rows.gather(-1, best)[..., 0]))
+                out.index_copy_(1, ids, rows.gather(-1, best).squeeze(-1).masked_fill(gone, 0.0))
             q_rows.append(q)
         outer = full.clone()  # W: an instance that ended at x hands over to its parent
         for ids in self._levels:
@@ -150,28 +149,35 @@ class ThreePartLearner(TabularLearner):
 
     # ------------------------------------------------------------------ updates
     def update(self, batch, step: int) -> None:
-        """Algorithm 1's updates for every finished child and primitive step in ``batch``."""
-        level, prim, values = batch[LEVEL], batch[PRIMITIVE], batch["values"]
+        """Algorithm 1's updates for every finished child and primitive step in ``batch``.
+
+        One update of the shared store: ``C`` and ``CE`` of every level whose child finished,
+        ``V`` of the primitive on its level (``ran``).
+        """
+        level, values = batch[LEVEL], batch["values"]
         alpha = self.alpha(step)
-        lay = self.layout
-        learner = batch["learner"][:, None]
-        table = lookup(lay.inst_table, level["inst"].clamp_min(0))
-        terminal = level["terminal"]
+        table = self.level_table(level)  # tables per instance: the instance
+        terminal, ran = level["terminal"], level["ran"]
         valid = level["valid"] & (level["child_done"] | terminal)
         t = self.time_of(batch)
         v_next = values["V"].gather(1, table)
         ce_next = values["CE"].gather(1, table)
         parent = level["parent_inst"]
-        outer = values["W"].gather(1, lookup(lay.inst_table, parent.clamp_min(0)))
-        outer = torch.where(parent >= 0, outer, 0.0)
+        outer = values["W"].gather(1, parent.clamp_min(0)).masked_fill(parent < 0, 0.0)
         c_target, ce_target = three_part_targets(self.discount(t), terminal, v_next, ce_next, outer)
-        idx = self.C.index(learner, table, level["state"], level["child"])
-        self.record_td(learner, level["node"], c_target - self.C.read(idx, valid), valid)
-        flat_idx, flat_valid = idx.view(-1), valid.view(-1)
-        self.C.update(flat_idx, c_target.view(-1), alpha, flat_valid)  # line 17
-        self.CE.update(flat_idx, ce_target.view(-1), alpha, flat_valid)  # lines 19 / 21
+        index = self.entry_index(batch, table)
+        c_or_v = torch.where(ran, self.primitive_target(batch)[:, None], c_target)  # line 5
+        old = self.tables.update(  # lines 17 and 19 / 21, and line 5
+            torch.cat([index, index + (self.CE.base - self.C.base)], 1).view(-1),
+            torch.cat([c_or_v, ce_target], 1).view(-1),
+            alpha,
+            torch.cat([valid | ran, valid], 1).view(-1),
+        )
+        old_c = old.view(index.shape[0], -1)[:, : index.shape[1]]
+        self.record_td(batch["learner"][:, None], level["node"], c_target - old_c, valid)
         if self.all_states and "visited_state" in level.keys():
             # line 16: every x in ChildSeq, with the time left after it
+            learner = batch["learner"][:, None]
             late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
             left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             c_k, ce_k = three_part_targets(
@@ -189,5 +195,3 @@ class ThreePartLearner(TabularLearner):
             ).reshape(-1)
             self.C.update(vidx, c_k.reshape(-1), alpha, late.reshape(-1))
             self.CE.update(vidx, ce_k.reshape(-1), alpha, late.reshape(-1))
-        pidx = self.table_index(self.V, batch["learner"], prim["inst"], prim["state"], 0)
-        self.V.update(pidx, self.primitive_target(batch), alpha, prim["valid"])  # line 5
