@@ -90,6 +90,16 @@ class TableEnv(BatchedEnv):
         self.terminal_table = terminated.to(self.device)
         self.starts = starts.to(self.device)
         self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
+        # flat views of the tables, and the observation fields of every state, one row per
+        # field (of one dtype: taken by one lookup per step)
+        self._flat = {"reward": reward, "terminated": terminated, "next": next_state}
+        self._flat = {k: v.reshape(-1).to(self.device) for k, v in self._flat.items()}
+        fields = self.decode(torch.arange(next_state.shape[0]))
+        self._field_names = list(fields)
+        self._field_table = None
+        if len({v.dtype for v in fields.values()}) == 1:
+            self._field_table = torch.stack([fields[k] for k in self._field_names])
+            self._field_table = self._field_table.to(self.device)
 
     @classmethod
     def tabulate(cls, graph):
@@ -109,7 +119,10 @@ class TableEnv(BatchedEnv):
         return BatchedToGymnasium(lambda seeds, n: cls(seeds, n), render_mode=render_mode)
 
     def _observe(self) -> dict[str, torch.Tensor]:
-        return self.decode(self.state)
+        if self._field_table is None:
+            return self.decode(self.state)
+        rows = self._field_table.index_select(1, self.state).unbind(0)
+        return dict(zip(self._field_names, rows, strict=True))
 
     def _reset_rows(self, mask: torch.Tensor) -> None:
         fresh = self.starts.index_select(0, self.rng.integers(len(self.starts)))  # every row
@@ -117,7 +130,14 @@ class TableEnv(BatchedEnv):
 
     def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         flat = self.state * self.n_actions + action  # index_select on flat tables: fast on CPU
-        reward = self.reward_table.view(-1).index_select(0, flat)
-        terminated = self.terminal_table.view(-1).index_select(0, flat)
-        self.state = self.next_state.view(-1).index_select(0, flat)
-        return reward, torch.ones_like(reward), terminated
+        reward = self._flat["reward"].index_select(0, flat)
+        terminated = self._flat["terminated"].index_select(0, flat)
+        self.state = self._flat["next"].index_select(0, flat)
+        return reward, self._unit_durations(), terminated
+
+    def _unit_durations(self) -> torch.Tensor:
+        """Ones ``[B]``: every step takes one time unit (kept)."""
+        ones = self.__dict__.get("_ones")
+        if ones is None or ones.shape[0] != self.batch_size or ones.device != self.device:
+            ones = self._ones = torch.ones(self.batch_size, device=self.device)
+        return ones

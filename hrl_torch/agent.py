@@ -29,6 +29,7 @@ from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor
 from hrl_torch.exploration import Exploration
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import Learner, ValuePolicy
+from hrl_torch.ops import put
 from hrl_torch.rng import BatchRNG
 
 #: key of the learner's values at ``s'`` in a transition batch (what ``evaluate`` computed)
@@ -44,8 +45,8 @@ def with_values(batch: TensorDict, ctx: StepContext) -> TensorDict:
     transitions end in, after ``learner.evaluate(ctx)``.
     """
     b = torch.Size([batch.batch_size[0]])
-    batch.set(VALUES, TensorDict._new_unsafe(ctx.values, batch_size=b))
-    batch.set(OBS, ctx.obs)
+    put(batch, VALUES, TensorDict._new_unsafe(ctx.values, batch_size=b))
+    put(batch, OBS, ctx.obs)
     return batch
 
 

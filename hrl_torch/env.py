@@ -89,48 +89,60 @@ class BatchedEnv:
         """Start a new episode in every row and return the observations."""
         every = torch.ones(self.batch_size, dtype=torch.bool, device=self.device)
         self._reset_rows(every)
-        self.elapsed.zero_()
-        self.done.zero_()
-        return self._output(
-            torch.zeros(self.batch_size, device=self.device),
-            torch.zeros(self.batch_size, device=self.device),
-            self.done.clone(),
-            self.done.clone(),
-            every,
-        )
+        self.elapsed = torch.zeros_like(self.elapsed)
+        self.done = torch.zeros_like(self.done)
+        zero = torch.zeros(self.batch_size, device=self.device)
+        return self._output(zero, zero.clone(), self.done, self.done.clone(), every)
 
     def step(self, action: torch.Tensor) -> TensorDict:
         """Advance every row one primitive step (rows that ended last step are reset instead)."""
         action = torch.as_tensor(action, device=self.device)
         if self.n_actions is not None:
-            if action.shape != (self.batch_size,):
-                raise ValueError(
-                    f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
-                )
-            bad = (action < 0) | (action >= self.n_actions)
-            if bool((bad & ~self.done).any()):
-                row = int((bad & ~self.done).nonzero()[0])
-                raise ValueError(
-                    f"action {int(action[row])} outside the action space [0, {self.n_actions}) "
-                    f"(env row {row})"
-                )
-            action = torch.where(bad, torch.zeros_like(action), action)
-        was_done = self.done.clone()
+            action = self._checked(action)
+        was_done = self.done  # (never written in place: a returned ``is_init`` stays valid)
         reward, duration, terminated = self._step_all(action)
-        self.elapsed += 1
+        fresh = ~was_done
+        elapsed = self.elapsed + 1
         if self.max_episode_steps is None:
             truncated = torch.zeros_like(terminated)
         else:
-            truncated = self.elapsed >= self.max_episode_steps
+            truncated = (elapsed >= self.max_episode_steps) & fresh
         self._reset_rows(was_done)
-        self.elapsed = self.elapsed.masked_fill(was_done, 0)
-        zero = torch.zeros((), device=self.device)
+        self.elapsed = elapsed.masked_fill(was_done, 0)
+        zero = self._zero()
         reward = torch.where(was_done, zero, reward.float())
         duration = torch.where(was_done, zero, duration.float())
-        terminated = terminated & ~was_done
-        truncated = truncated & ~was_done
+        terminated = terminated & fresh
         self.done = terminated | truncated
         return self._output(reward, duration, terminated, truncated, was_done)
+
+    def _checked(self, action: torch.Tensor) -> torch.Tensor:
+        """``action`` checked: a ``[B]`` batch inside the action space.
+
+        Rows whose episode ended may hold anything (they are reset; their action is ignored).
+        """
+        if action.shape != (self.batch_size,):
+            raise ValueError(
+                f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
+            )
+        low, high = torch.aminmax(action)
+        if int(low) >= 0 and int(high) < self.n_actions:
+            return action
+        bad = (action < 0) | (action >= self.n_actions)
+        if bool((bad & ~self.done).any()):
+            row = int((bad & ~self.done).nonzero()[0])
+            raise ValueError(
+                f"action {int(action[row])} outside the action space [0, {self.n_actions}) "
+                f"(env row {row})"
+            )
+        return torch.where(bad, torch.zeros_like(action), action)
+
+    def _zero(self) -> torch.Tensor:
+        """A 0-d zero on the env's device (kept)."""
+        zero = self.__dict__.get("_zero_scalar")
+        if zero is None or zero.device != self.device:
+            zero = self._zero_scalar = torch.zeros((), device=self.device)
+        return zero
 
     def _output(self, reward, duration, terminated, truncated, is_init) -> TensorDict:
         fields = self._observe()
@@ -141,7 +153,10 @@ class BatchedEnv:
             truncated=truncated,
             is_init=is_init,
         )
-        return TensorDict(fields, batch_size=[self.batch_size], device=self.device)
+        return TensorDict._new_unsafe(fields, batch_size=self._batch_shape(), device=self.device)
+
+    def _batch_shape(self) -> torch.Size:
+        return torch.Size([self.batch_size])
 
     def to(self, device: torch.device | str) -> BatchedEnv:
         """Move every tensor of the env (state, tables, random streams) to ``device``."""
@@ -151,6 +166,10 @@ class BatchedEnv:
         for name, value in vars(self).items():
             if isinstance(value, torch.Tensor):
                 setattr(self, name, value.to(device))
+            elif isinstance(value, dict) and all(
+                isinstance(v, torch.Tensor) for v in value.values()
+            ):
+                setattr(self, name, {k: v.to(device) for k, v in value.items()})
         self.rng = self.rng.to(device)
         self.device = device
         return self

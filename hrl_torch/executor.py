@@ -48,7 +48,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import discount
+from hrl_torch.ops import discount, entries
 from hrl_torch.stack import TaskStack
 
 #: key of the per-level transitions ``[B, D]`` in a transition batch
@@ -357,8 +357,7 @@ class HierarchicalExecutor:
             started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
             started = started.scatter_add(1, node, invoked.float()) > 0
             f["memory"] = torch.where(started[..., None], g.remember_all(ctx.obs), f["memory"])
-        self.stats.count_calls(node, invoked)
-        self.invoked = invoked
+        self.invoked = invoked  # (counted in the statistics at the next observe)
 
     # ------------------------------------------------------------------ observing
     def observe(
@@ -369,19 +368,20 @@ class HierarchicalExecutor:
         With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
         """
         g, f = self.graph, self.stack.tensors()
+        step = entries(step_td)
         # multi-agent rows (``hrl_torch.multiagent``): an agent that does not act at this step
         # is in the middle of its primitive action; its stack waits untouched
-        self._acting = step_td.get("acting", None)
-        step_td, bad = self._bad_steps(step_td, f)  # rows whose step is skipped, or None
-        reward, tau = step_td["reward"], step_td["duration"]
-        real = ~step_td["is_init"]
-        env_term = step_td["terminated"] & real
-        env_trunc = step_td["truncated"] & real & ~env_term
+        self._acting = step.get("acting", None)
+        step, bad = self._bad_steps(step, f)  # rows whose step is skipped, or None
+        is_init = step["is_init"]
+        real = ~is_init
+        env_term = step["terminated"] & real
+        env_trunc = step["truncated"] & real & ~env_term
         stepped = real if self._acting is None else real & self._acting
         inst, node = f["inst"], f["node"]
         active = (inst >= 0) & stepped[:, None]
         is_prim = torch.take(g.node_is_primitive, node) & active
-        self._accumulate(f, active, node, reward, tau, ctx)
+        self._accumulate(f, active, node, step["reward"], step["duration"], ctx)
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
@@ -397,7 +397,8 @@ class HierarchicalExecutor:
             cut = cut | (self.interrupt((cut.cumsum(1) > 0) & active, ended_own) & active)
         popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
         chose = active & ~is_prim  # levels whose child ran this step
-        emit = chose & _shift_left(popped)
+        child_ended = popped.roll(-1, 1)  # (the last level never chooses: no wrap-around)
+        emit = chose & child_ended
         taught = stepped  # rows whose primitive step is a transition
         if bad is not None:  # ... and teaches nothing
             emit, taught = emit & ~bad[:, None], stepped & ~bad
@@ -406,33 +407,33 @@ class HierarchicalExecutor:
 
         batch = None
         if transitions:
+            child_done = ended_own.roll(-1, 1) & emit
             batch = self._transitions(
-                f, step_td, ctx, emit, _shift_left(ended_own), terminal, env_trunc, taught, ran
+                f, step, ctx, emit, child_done, terminal, env_trunc, taught, ran
             )
         if self.config.record_visited:
-            self._record_visits(f, chose & ~_shift_left(popped), ctx, node)
+            self._record_visits(f, chose & ~child_ended, ctx, node)
 
-        self.stats.count_ends(node, popped, ended_own, f["inv_steps"])
+        self.stats.count(node, self.invoked, popped, ended_own, f["inv_steps"])
         f["inst"] = inst.masked_fill(popped, -1)
-        top = (f["top"] - popped.sum(1)).masked_fill(~real, -1)
-        f["top"] = top
+        f["top"] = (f["top"] - popped.sum(1)).masked_fill(is_init, -1)
         f["done"] = env_term | env_trunc
         self.stack = TaskStack.from_tensors(f, self.batch_size)
         return batch
 
-    def _bad_steps(self, step_td: TensorDict, f: dict):
+    def _bad_steps(self, step: dict, f: dict):
         """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN).
 
         A bad step raises ``BadStepError`` naming the row and the primitive that ran, or (with
-        ``on_bad_step="skip"``) is counted: returns ``(step_td, bad [B])`` with a copy of
-        ``step_td`` whose bad rows have reward and duration 0; ``(step_td, None)`` if no step
-        is bad.
+        ``on_bad_step="skip"``) is counted: returns ``(step, bad [B])`` with a copy of the
+        step's fields ``step`` whose bad rows have reward and duration 0; ``(step, None)`` if no
+        step is bad.
         """
-        reward, tau = step_td["reward"], step_td["duration"]
+        reward, tau = step["reward"], step["duration"]
         ok = (reward + tau) * 0 + tau >= 0  # False for inf/NaN in either and for d < 0
         if bool(ok.all()):
-            return step_td, None
-        bad = ~ok & ~step_td["is_init"]
+            return step, None
+        bad = ~ok & ~step["is_init"]
         row = int((~ok).nonzero()[0])
         if self.config.on_bad_step == "raise":
             top = int(f["top"][row])
@@ -445,10 +446,10 @@ class HierarchicalExecutor:
             )
         self.skipped_steps.index_add_(0, self.learner, bad.float())
         zero = torch.zeros((), device=reward.device)
-        step_td = step_td.clone(False)
-        step_td["reward"] = torch.where(ok, reward, zero)
-        step_td["duration"] = torch.where(ok, tau, zero)
-        return step_td, bad
+        step = dict(step)
+        step["reward"] = torch.where(ok, reward, zero)
+        step["duration"] = torch.where(ok, tau, zero)
+        return step, bad
 
     def _accumulate(self, f: dict, active, node, reward, tau, ctx: StepContext) -> None:
         """Add the step's reward and time to the current child of every active level."""
@@ -504,7 +505,7 @@ class HierarchicalExecutor:
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
-    def _transitions(self, f, step_td, ctx, emit, child_done, terminal, env_trunc, real, ran):
+    def _transitions(self, f, step, ctx, emit, child_done, terminal, env_trunc, real, ran):
         """The finished SMDP transitions of this step (see the module docstring)."""
         g, b, node = self.graph, self.batch_size, f["node"]
         if g.internal_nodes:
@@ -527,7 +528,7 @@ class HierarchicalExecutor:
             "internal_reward": f["internal"],
             "pseudo_reward": pseudo,
             "terminal": terminal,
-            "child_done": child_done & emit,
+            "child_done": child_done,
             "truncated": env_trunc[:, None] & emit & ~terminal,
             "greedy": f["greedy"],
             "own_greedy": f["own_greedy"],
@@ -554,12 +555,12 @@ class HierarchicalExecutor:
             {
                 "learner": self.learner,
                 LEVEL: TensorDict._new_unsafe(level, batch_size=torch.Size([b, self.depth])),
-                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step_td, real, ran), size),
+                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step, real, ran), size),
             },
             batch_size=size,
         )
 
-    def _primitive(self, f: dict, step_td: TensorDict, real, ran) -> dict:
+    def _primitive(self, f: dict, step: dict, real, ran) -> dict:
         """The fields of the primitive step each row just took (``batch[PRIMITIVE]``).
 
         ``ran [B, D]`` marks the level of the primitive (its ``state`` reads 0 where the step
@@ -573,8 +574,8 @@ class HierarchicalExecutor:
             "inst": top1 - 1,
             "node": torch.take(g.inst_node_1, top1),
             "state": (f["start_state"] * ran).sum(1),
-            "reward": step_td["reward"],
-            "duration": step_td["duration"],
+            "reward": step["reward"],
+            "duration": step["duration"],
             "greedy": f["own_greedy"].all(1),  # the levels at and above the top hold True
             "action": action,
         }
@@ -588,6 +589,7 @@ class HierarchicalExecutor:
             "action": self._action.clone(),
             "obs": {} if self._obs is None else self._obs.to_dict(),
             "skipped_steps": self.skipped_steps.clone(),
+            "invoked": self.invoked.clone(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -601,6 +603,8 @@ class HierarchicalExecutor:
         self._action = state["action"].to(self.device).clone()
         skipped = state.get("skipped_steps", torch.zeros_like(self.skipped_steps))
         self.skipped_steps = skipped.to(self.device).clone()
+        invoked = state.get("invoked", torch.zeros_like(self.invoked))  # (older checkpoints)
+        self.invoked = invoked.to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
 
@@ -652,14 +656,14 @@ class ExecutorStats:
         for k, name in enumerate(self.FIELDS):
             setattr(self, name, self.counts[k].view(self.shape))
 
-    def count_calls(self, node: torch.Tensor, mask: torch.Tensor) -> None:
-        """Count one invocation of ``node[b, k]`` where ``mask[b, k]`` (``[B, D]``)."""
-        self.calls.view(-1).index_add_(0, (self._base + node).view(-1), mask.view(-1).float())
+    def count(self, node, invoked, popped, ended_own, inv_steps) -> None:
+        """Count calls, finished invocations, successes and lengths in steps.
 
-    def count_ends(self, node, popped, ended_own, inv_steps) -> None:
-        """Count finished invocations, their successes and lengths in steps (``[B, D]``)."""
-        values = torch.stack([popped, ended_own & popped, inv_steps * popped]).float()
-        self.counts[1:].index_add_(1, (self._base + node).view(-1), values.view(3, -1))
+        ``[B, D]`` masks of the stack before this step's pops: ``invoked`` the invocations the
+        last ``act`` started, ``popped`` the finished ones (``ended_own``: on their own).
+        """
+        values = torch.stack([invoked, popped, ended_own & popped, inv_steps * popped]).float()
+        self.counts.index_add_(1, (self._base + node).view(-1), values.view(4, -1))
 
     def reset(self) -> None:
         """Zero every counter (after logging)."""

@@ -95,21 +95,27 @@ class BatchRNG:
     def uniform(self, extra: int = 0, counter: int | None = None) -> torch.Tensor:
         """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).
 
-        ``counter`` reads a given draw number instead of the next one (see ``reserve``). The
-        next draws of one width are computed ahead in blocks (up to ``AHEAD``, at most about
-        ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number alone, so a
-        block gives exactly what the draws one by one would, in one set of ops.
+        ``counter`` reads a given draw number instead of the next one (see ``reserve``).
+        """
+        return self._draw(extra, extra, counter, None)
+
+    def _draw(self, key, extra: int, counter: int | None, transform) -> torch.Tensor:
+        """Draw ``counter`` (the next one if ``None``) of width ``extra``, ``transform``-ed.
+
+        The next draws of one kind are computed ahead in blocks (up to ``AHEAD``, at most
+        about ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number alone,
+        so a block holds exactly what the draws one by one would, made by one set of ops.
         """
         if counter is None:
             counter = self.counter
             self.counter += 1
-        block = self._ahead.get(extra)
+        block = self._ahead.get(key)
         if block is None or not block[0] <= counter < block[0] + block[1].shape[0]:
             per_draw = self.batch_size * max(extra, 1)
             k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
-            bits = self._bits(extra, counter, k)
-            block = (counter, (bits >> 8).to(torch.float32) * (1.0 / 16777216.0))
-            self._ahead[extra] = block
+            u = (self._bits(extra, counter, k) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+            block = (counter, u if transform is None else transform(u))
+            self._ahead[key] = block
         return block[1][counter - block[0]]
 
     def reserve(self, n: int) -> int:
@@ -120,13 +126,15 @@ class BatchRNG:
 
     def integers(self, high: torch.Tensor | int, extra: int = 0) -> torch.Tensor:
         """Integers uniform in ``[0, high)``; ``high`` may be a per-row tensor of shape ``[B]``."""
-        u = self.uniform(extra)
         if isinstance(high, torch.Tensor):
+            u = self.uniform(extra)
             high = high.long()
             if extra:
                 high = high[:, None]
             return torch.minimum((u * high).long(), high - 1)
-        return (u * high).long().clamp_max(high - 1)
+        return self._draw(
+            ("int", extra, high), extra, None, lambda u: (u * high).long().clamp_max(high - 1)
+        )
 
     def normal(self, extra: int = 0) -> torch.Tensor:
         """Standard normal draws (Box-Muller on two uniform draws)."""

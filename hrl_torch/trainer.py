@@ -27,6 +27,7 @@ from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.monitor import LeafRewardMonitor
 from hrl_torch.multiagent import MultiAgentAgent, MultiAgentConfig, agent_rng
+from hrl_torch.ops import entries
 from hrl_torch.rng import BatchRNG
 from hrl_torch.runlog import RunLogger
 
@@ -193,8 +194,8 @@ class Trainer:
             self.agent.update(batch)
         if self.leaf_monitor is not None and batch is not None:
             self.leaf_monitor.observe(batch, self.rows)
-        self._episodes.add(td)
-        self.real_steps.index_add_(0, self.rows, (~td["is_init"]).double())
+        real = self._episodes.add(td)
+        self.real_steps.index_add_(0, self.rows, real.double())
         if self.evaluator is not None:  # continuing tasks: training throughput
             self.evaluator.observe(td, self.rows, self.P)
 
@@ -653,8 +654,8 @@ class _EvalEpisodes:
         return TensorDict(fields, batch_size=[row.shape[0]])
 
 
-def _counted_reward(td: TensorDict, finite_only: bool) -> torch.Tensor:
-    """The step's reward as returns count it.
+def _counted_reward(td, finite_only: bool) -> torch.Tensor:
+    """The step's reward as returns count it (``td``: the step, or its ``entries``).
 
     With ``finite_only`` (``ExecutorConfig.on_bad_step="skip"``) a skipped bad step counts 0.
     """
@@ -663,7 +664,12 @@ def _counted_reward(td: TensorDict, finite_only: bool) -> torch.Tensor:
 
 
 def _succeeded(td, key: str) -> torch.Tensor:
-    """``[B]``: the episode terminated successfully (``key``: see ``TrainConfig.success_key``)."""
+    """``[B]``: the episode terminated successfully (``key``: see ``TrainConfig.success_key``).
+
+    ``td``: the step (a TensorDict or its ``entries``).
+    """
+    if key == "terminated":
+        return td["terminated"]
     flag = ~td[key[1:]] if key.startswith("!") else td[key]
     return flag & td["terminated"]
 
@@ -695,18 +701,20 @@ class _EpisodeTracker:
         self.length = torch.zeros(batch_size, device=device)
         self.sums = torch.zeros(4, n_learners, device=device)  # episodes, return, length, wins
 
-    def add(self, td) -> None:
-        real = ~td["is_init"]
-        self.ret += _counted_reward(td, self.finite_only) * real
+    def add(self, td) -> torch.Tensor:
+        """Account one step of every row; returns the rows that took a real step ``[B]``."""
+        f = entries(td)
+        real = ~f["is_init"]
+        self.ret += _counted_reward(f, self.finite_only) * real
         self.length += real
-        ended = ((td["terminated"] | td["truncated"]) & real).float()
-        values = torch.stack(
-            [ended, self.ret, self.length, _succeeded(td, self.success_key).float()]
-        )
+        ended = ((f["terminated"] | f["truncated"]) & real).float()
+        won = _succeeded(f, self.success_key)
+        values = torch.stack([ended, self.ret, self.length, won.float()])
         self.sums.index_add_(1, self.rows, values * ended)
         keep = 1 - ended
         self.ret *= keep
         self.length *= keep
+        return real
 
     def flush(self) -> dict[str, list[float]]:
         sums = self.sums.cpu()

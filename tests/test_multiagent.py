@@ -88,15 +88,17 @@ def root_choices(scheme: str, steps: int = 10):
         learn=False,
     )
     agent.set_policy(AgentIndexPolicy())
-    calls = agent.executor.stats.calls  # [agents, nodes]
     names = {g.index[n]: n for n in ("TaskA", "TaskB", "Wait")}
     seen = []
-    before = calls.clone()
+
+    def started():  # the root's children invoked by the latest act, per agent row
+        ex = agent.executor
+        new = ex.invoked[:, 1] & (ex.stack.inst[:, 1] >= 0)
+        return {(j, names[int(ex.stack.node[j, 1])]) for j in range(2) if bool(new[j])}
+
     action = agent.start(env.reset())
     for _ in range(steps):
-        made = calls - before
-        seen.append({(j, names[k]) for j in range(2) for k in names if made[j, k] > 0})
-        before = calls.clone()
+        seen.append(started())
         action, _ = agent.decide(env.step(action))
     return seen
 

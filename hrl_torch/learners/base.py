@@ -176,14 +176,14 @@ class TabularLearner(Learner):
         n_cols = torch.where(prim, primitive.n_cols, composite.n_cols)
         self.register_buffer("entry_cols", n_cols, persistent=False)
 
-    def entry_index(self, batch, table: torch.Tensor) -> torch.Tensor:
+    def entry_index(self, learner: torch.Tensor, level, table: torch.Tensor) -> torch.Tensor:
         """``[B, D]`` flat indices of each level's entry at its start state and child.
 
         A non-primitive level's ``C(i, s, a)``, the primitive level's ``V(a, s)`` (its child
-        slot is 0); ``share_store`` made the layout.
+        slot is 0); ``share_store`` made the layout. ``learner [B]``, ``level`` the
+        transitions' levels (``batch[LEVEL]``).
         """
-        level = batch[LEVEL]
-        base = self.learner_base(batch["learner"], self.tables.stride)
+        base = self.learner_base(learner, self.tables.stride)
         offset, n_cols = torch.take(self.entry_offset, table), torch.take(self.entry_cols, table)
         return base + offset + level["state"] * n_cols + level["child"]
 

@@ -26,7 +26,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import discount
+from hrl_torch.ops import discount, entries
 
 
 class MaxQLearner(TabularLearner):
@@ -126,7 +126,8 @@ class MaxQLearner(TabularLearner):
         One update of the shared store: ``C`` (and ``C~``) of every level whose child finished,
         ``V(a, s) <- (1-alpha) V + alpha r`` of the primitive on its level (``ran``).
         """
-        level, values = batch[LEVEL], batch["values"]
+        fields = entries(batch)
+        level, values = entries(fields[LEVEL]), entries(fields["values"])
         alpha = self.alpha(step)
         table = self.level_table(level)
         terminal, ran = level["terminal"], level["ran"]
@@ -134,8 +135,8 @@ class MaxQLearner(TabularLearner):
         v_next = values["V"].gather(1, table)
         v_next_int = values["V_int"].gather(1, table) if self.internal else v_next
         target, target_int = self.targets(level, terminal, v_next, v_next_int)
-        target = torch.where(ran, batch[PRIMITIVE]["reward"][:, None], target)
-        index = self.entry_index(batch, table)
+        target = torch.where(ran, entries(fields[PRIMITIVE])["reward"][:, None], target)
+        index = self.entry_index(fields["learner"], level, table)
         mask = valid | ran
         if self.internal:  # C~ sits at a fixed distance from C in every learner's block
             index = torch.cat([index, index + (self.C_int.base - self.C.base)], 1)
@@ -144,7 +145,7 @@ class MaxQLearner(TabularLearner):
         old = self.tables.update(index.view(-1), target.view(-1), alpha, mask.view(-1))
         if self.internal:
             old = old.view(index.shape)[:, valid.shape[1] :]
-        learner = batch["learner"][:, None]
+        learner = fields["learner"][:, None]
         self.record_td(learner, level["node"], target_int - old.view(valid.shape), valid)
         if self.all_states and "visited_state" in level.keys():
             self._update_visited(batch, table, terminal, valid, v_next, v_next_int, alpha)

@@ -35,7 +35,7 @@ from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns
+from hrl_torch.ops import columns, entries
 
 
 def three_part_targets(
@@ -154,7 +154,8 @@ class ThreePartLearner(TabularLearner):
         One update of the shared store: ``C`` and ``CE`` of every level whose child finished,
         ``V`` of the primitive on its level (``ran``).
         """
-        level, values = batch[LEVEL], batch["values"]
+        fields = entries(batch)
+        level, values = entries(fields[LEVEL]), entries(fields["values"])
         alpha = self.alpha(step)
         table = self.level_table(level)  # tables per instance: the instance
         terminal, ran = level["terminal"], level["ran"]
@@ -165,7 +166,7 @@ class ThreePartLearner(TabularLearner):
         parent = level["parent_inst"]
         outer = values["W"].gather(1, parent.clamp_min(0)).masked_fill(parent < 0, 0.0)
         c_target, ce_target = three_part_targets(self.discount(t), terminal, v_next, ce_next, outer)
-        index = self.entry_index(batch, table)
+        index = self.entry_index(fields["learner"], level, table)
         c_or_v = torch.where(ran, self.primitive_target(batch)[:, None], c_target)  # line 5
         old = self.tables.update(  # lines 17 and 19 / 21, and line 5
             torch.cat([index, index + (self.CE.base - self.C.base)], 1).view(-1),
