@@ -186,6 +186,7 @@ class HierarchicalExecutor:
         if graph.shaping_nodes:
             self._accumulators.append("internal")
         self._no_reward = torch.zeros(batch_size, self.depth, device=device)
+        self._spans, self._span_code_1 = _level_spans(self.depth, graph.inst_depth_1)
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self._acting: torch.Tensor | None = None  # agent rows acting at this step (observe)
@@ -256,12 +257,12 @@ class HierarchicalExecutor:
         """
         g, ic = self.graph, self.graph.n_choosers
         nxt = torch.take(g.chooser_next_code, self._chooser_base + choice.child)
-        nxt = torch.cat([nxt, self._leaf_codes], 1).view(-1)  # a primitive stays where it is
+        nxt = torch.cat([nxt, self._leaf_codes], 1)  # a primitive stays where it is
         code = self._start_code(f)
         for _ in range(self.depth - 1):
-            code = torch.take(nxt, self._code_base + code)
+            code = torch.take(nxt, self._code_base + code)  # (take reads nxt flat)
         top1 = code - ic
-        greedy = torch.nn.functional.pad(choice.greedy, (0, 1), value=True).view(-1)
+        greedy = torch.nn.functional.pad(choice.greedy, (0, 1), value=True)
         own = torch.take(greedy, self._greedy_base + g.path_chooser_1.index_select(0, top1))
         return top1, own
 
@@ -322,23 +323,21 @@ class HierarchicalExecutor:
         new child (accumulators restart), the ones above the old top are new invocations (the
         root too on a row that starts). Levels below the old top keep what they had.
         """
-        g, lv = self.graph, self.levels_row
-        old_top = f["top"][:, None]  # -1 on a row that starts: its root is fresh too
+        g = self.graph
+        # the levels' roles, looked up by (old top, new top); -1 on a row that starts: its
+        # root is fresh too
+        span = f["top"] * (self.depth + 1) + torch.take(self._span_code_1, top1)
+        kept, chose, invoked, fresh = self._spans.index_select(0, span).unbind(1)
         f["inst"] = g.path_inst_1.index_select(0, top1)
         f["node"] = node = g.path_node_1.index_select(0, top1)
-        top = torch.take(g.inst_depth_1, top1)
-        f["top"] = top
-        new_top = top[:, None]
-        kept = lv < old_top
-        chose = ~kept & (lv < new_top)
-        invoked = (lv > old_top) & (lv <= new_top)
-        stuck = chose & ~ctx.available.any(-1).gather(1, node)
-        if bool(stuck.any()):
-            _raise_stuck(g, stuck, node)
+        f["top"] = torch.take(g.inst_depth_1, top1)
+        if not g.never_stuck:
+            stuck = chose & ~ctx.available.any(-1).gather(1, node)
+            if bool(stuck.any()):
+                _raise_stuck(g, stuck, node)
         f["child"] = torch.where(kept, f["child"], g.path_child_1.index_select(0, top1))
         f["own_greedy"] = own = torch.where(kept, f["own_greedy"], own_greedy)
         f["greedy"] = own.cummin(1).values  # the level's own choice and every ancestor's
-        fresh = chose | invoked
         f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])
         for key in self._accumulators:
             f[key] = f[key].masked_fill(chose, 0)
@@ -607,6 +606,27 @@ class HierarchicalExecutor:
         self.invoked = invoked.to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The levels' roles in a push, by old and new top: ``(spans, code)``.
+
+    ``spans[(old + 1) * (D + 1) + new + 1]`` is ``[4, D]``: the levels kept (below the old
+    top), the ones that chose a child (old top .. new top - 1), the new invocations (above
+    the old top up to the new one) and the fresh ones (either). ``code[top1]`` is
+    ``depth + 1 + (D + 1)`` of the instance ``top1 - 1``, so that ``old * (D + 1) + code``
+    is the row of ``spans``.
+    """
+    lv = torch.arange(depth)
+    rows = []
+    for old in range(-1, depth):
+        for new in range(-1, depth):
+            kept = lv < old
+            chose = ~kept & (lv < new)
+            invoked = (lv > old) & (lv <= new)
+            rows.append(torch.stack([kept, chose, invoked, chose | invoked]))
+    code = depth_1 + 1 + (depth + 1)
+    return torch.stack(rows).to(depth_1.device), code
 
 
 def _as_choice(out) -> Choice:

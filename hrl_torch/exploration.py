@@ -68,15 +68,15 @@ def as_schedule(value: float | Schedule) -> Schedule:
 
 def masked_argmax(q: torch.Tensor, available: torch.Tensor) -> torch.Tensor:
     """Index of the largest available value per row (``q [..., A]`` -> ``[...]``)."""
-    return torch.where(available, q, -math.inf).argmax(-1)
+    return q.masked_fill(~available, -math.inf).argmax(-1)
 
 
 def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """Uniform pick among available entries: the available entry with the largest ``u``.
 
-    ``u [B, A]`` independent uniforms (ties have probability 0).
+    ``u [..., A]`` independent uniforms in ``[0, 1)`` (ties have probability 0).
     """
-    return torch.where(available, u, -1.0).argmax(-1)
+    return u.masked_fill(~available, -1.0).argmax(-1)
 
 
 def uniforms_needed(n_children: int) -> int:
@@ -85,13 +85,17 @@ def uniforms_needed(n_children: int) -> int:
 
 
 class Greedy:
-    """Always the best available child (random among exact ties)."""
+    """Always the best available child (random among exact ties).
+
+    Like every strategy: ``q [..., A]``, ``available [..., A]``, uniforms ``u [..., A + 1]``
+    (any leading dimensions) give ``(choice [...], greedy [...])``.
+    """
 
     def select(
         self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(choice [B], greedy [B])``."""
-        choice = masked_argmax(q + u[:, : q.shape[-1]] * _TIE_NOISE, available)
+        """Return ``(choice, greedy)``."""
+        choice = masked_argmax(q + u[..., : q.shape[-1]] * _TIE_NOISE, available)
         return choice, torch.ones_like(choice, dtype=torch.bool)
 
 
@@ -108,11 +112,13 @@ class EpsilonGreedy:
     def select(
         self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(choice [B], greedy [B])``; a random pick that equals the greedy one counts."""
+        """Return ``(choice, greedy)``; a random pick that equals the greedy one counts."""
         a = q.shape[-1]
-        greedy_choice = masked_argmax(q + u[:, :a] * _TIE_NOISE, available)
-        explore = u[:, a] < self.epsilon(step)
-        choice = torch.where(explore, uniform_choice(available, u[:, :a]), greedy_choice)
+        per_child, blocked = u[..., :a], ~available
+        greedy_choice = (q + per_child * _TIE_NOISE).masked_fill(blocked, -math.inf).argmax(-1)
+        random_choice = per_child.masked_fill(blocked, -1.0).argmax(-1)
+        explore = u[..., a] < self.epsilon(step)
+        choice = torch.where(explore, random_choice, greedy_choice)
         return choice, choice == greedy_choice
 
 
@@ -125,14 +131,14 @@ class Boltzmann:
     def select(
         self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(choice [B], greedy [B])`` sampled by inverse CDF."""
+        """Return ``(choice, greedy)`` sampled by inverse CDF."""
         temp = max(self.temperature(step), 1e-8)
-        logits = torch.where(available, q / temp, -math.inf)
+        logits = (q / temp).masked_fill(~available, -math.inf)
         probs = torch.softmax(logits, dim=-1)
-        pick = u[:, q.shape[-1], None]
+        pick = u[..., q.shape[-1], None]
         choice = (probs.cumsum(-1) <= pick).sum(-1).clamp_max(q.shape[-1] - 1)
         best = masked_argmax(q, available)
-        choice = torch.where(available.gather(-1, choice[:, None]).squeeze(-1), choice, best)
+        choice = torch.where(available.gather(-1, choice[..., None]).squeeze(-1), choice, best)
         return choice, choice == best
 
 

@@ -539,6 +539,7 @@ class TaskGraph(nn.Module):
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``
+        self.never_stuck = False  # (``tabulate`` can prove it)
         # which nodes need a call per step (defaults are constant columns)
         self._abstract_nodes = self._custom(lambda x: x.n_states > 1 or _overrides(x, "abstract"))
         self._terminating_nodes = self._custom(
@@ -607,6 +608,9 @@ class TaskGraph(nn.Module):
         for name, value in tables.items():
             self.register_buffer(name, value, persistent=False)
         self._table_key = key
+        # every subtask has an available child in every state: no push can get stuck
+        composite = ~self.node_is_primitive
+        self.never_stuck = bool(ctx.available.any(-1)[:, composite].all())
 
     def context(
         self,

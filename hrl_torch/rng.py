@@ -92,19 +92,28 @@ class BatchRNG:
         cols = torch.tensor(cols, dtype=torch.int64, device=self.device)
         return mix32(self._row_key[None, :, None] ^ cols[:, None, :])
 
-    def uniform(self, extra: int = 0, counter: int | None = None) -> torch.Tensor:
+    def uniform(
+        self, extra: int = 0, counter: int | None = None, columns: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).
 
-        ``counter`` reads a given draw number instead of the next one (see ``reserve``).
+        ``counter`` reads a given draw number instead of the next one (see ``reserve``);
+        ``columns`` (a fixed index tensor ``[C]``) keeps only those columns of the draw:
+        ``[B, C]``, what ``uniform(extra)[:, columns]`` gives.
         """
-        return self._draw(extra, extra, counter, None)
+        if columns is None:
+            return self._draw(extra, extra, counter, None)
+        return self._draw(
+            (extra, id(columns)), extra, counter, lambda u: u.index_select(-1, columns), columns
+        )
 
-    def _draw(self, key, extra: int, counter: int | None, transform) -> torch.Tensor:
+    def _draw(self, key, extra: int, counter: int | None, transform, keep=None) -> torch.Tensor:
         """Draw ``counter`` (the next one if ``None``) of width ``extra``, ``transform``-ed.
 
         The next draws of one kind are computed ahead in blocks (up to ``AHEAD``, at most
         about ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number alone,
         so a block holds exactly what the draws one by one would, made by one set of ops.
+        ``keep``: an object the block's key refers to (held with the block).
         """
         if counter is None:
             counter = self.counter
@@ -114,7 +123,7 @@ class BatchRNG:
             per_draw = self.batch_size * max(extra, 1)
             k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
             u = (self._bits(extra, counter, k) >> 8).to(torch.float32) * (1.0 / 16777216.0)
-            block = (counter, u if transform is None else transform(u))
+            block = (counter, u if transform is None else transform(u), keep)
             self._ahead[key] = block
         return block[1][counter - block[0]]
 

@@ -237,14 +237,25 @@ class ValuePolicy:
         self.exploration = exploration
         self.rng = rng
         self.choice_cost: torch.Tensor | None = None
-        self.width = uniforms_needed(learner.graph.max_children)
+        g = learner.graph
+        self.width = uniforms_needed(g.max_children)
         self.all_at_once = hasattr(learner, "instance_action_values")
-        self._u = None
+        # the uniforms of every chooser's level: columns of one step's draw
+        cols = g.chooser_depth[:, None] * self.width + torch.arange(
+            self.width, device=g.chooser_depth.device
+        )
+        self._chooser_columns = cols.view(-1)
+        self._draw: int | None = None
 
     def new_step(self) -> None:
-        """Draw this step's uniforms ``[B, levels, width]``."""
+        """Take this step's draw: uniforms ``[B, levels, width]`` (read by the choices)."""
+        self._draw = self.rng.reserve(1)
+
+    def _uniforms(self) -> torch.Tensor:
+        """This step's uniforms ``[B, levels, width]``."""
         levels = self.learner.graph.max_levels
-        self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
+        u = self.rng.uniform(levels * self.width, counter=self._draw)
+        return u.view(-1, levels, self.width)
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
@@ -253,7 +264,7 @@ class ValuePolicy:
         q = self.learner.action_values(inst, ctx)
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
-        return Choice(*self.exploration.select(q, available, self._u[:, push], step))
+        return Choice(*self.exploration.select(q, available, self._uniforms()[:, push], step))
 
     def choose_all(self, ctx: StepContext, step: int) -> Choice | None:
         """The choices ``[B, Ic]`` of every choosing instance (``graph.choosers``).
@@ -267,8 +278,8 @@ class ValuePolicy:
         q = self.learner.instance_action_values(ctx)
         if self.choice_cost is not None:
             q = q - self.choice_cost.index_select(0, g.chooser_node)
-        b, ic, a = q.shape
-        available = ctx.available.index_select(1, g.chooser_node).view(-1, a)
-        u = self._u.index_select(1, g.chooser_depth).view(-1, self.width)
-        child, greedy = self.exploration.select(q.view(-1, a), available, u, step)
-        return Choice(child.view(b, ic), greedy.view(b, ic))
+        available = ctx.available.index_select(1, g.chooser_node)
+        u = self.rng.uniform(
+            g.max_levels * self.width, counter=self._draw, columns=self._chooser_columns
+        )
+        return Choice(*self.exploration.select(q, available, u.view(q.shape[:2] + (-1,)), step))
