@@ -140,7 +140,7 @@ def _internal_reward(local: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
     """
     position = local[:, :2]
     failure = FAILURE_REWARD * _outside(position)
-    terminal = torch.where(_at_goal(position, goal), SUCCESS_REWARD, failure)
+    terminal = failure.masked_fill(_at_goal(position, goal), SUCCESS_REWARD)
     return _shaping(local, goal) + terminal
 
 
@@ -275,12 +275,13 @@ class ShipFrames:
         x, y = obs["x"], obs["y"]
         return self._position((x, y), lambda: torch.stack([x, y], dim=-1))
 
-    def headings(self, obs: TensorDict) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(wrap(theta + TURNS) [B, 4], theta_dot [B, 1])``."""
+    def headings(self, obs: TensorDict) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
+        """``(wrap(theta + TURNS[j]) [B, 1] for each j, theta_dot [B, 1])``."""
         theta, theta_dot = obs["theta"], obs["theta_dot"]
 
         def compute():
-            return wrap_degrees(theta[:, None] + TURNS.to(theta.device)), theta_dot[:, None]
+            turned = wrap_degrees(theta[:, None] + TURNS.to(theta.device))
+            return turned.split(1, dim=1), theta_dot[:, None]
 
         return self._headings((theta, theta_dot), compute)
 
@@ -322,21 +323,24 @@ class DirectionSubtask(Subtask):
 
     def local_state(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
         """The local state ``[B, 4]`` (``to_local`` of the observation, origin ``memory``)."""
+        return self._local_frame(obs, memory)[0]
+
+    def _local_frame(self, obs: TensorDict, memory: torch.Tensor):
+        """``(local state [B, 4], local position [B, 2])``, computed once per input."""
         tensors = (obs["x"], obs["y"], obs["theta"], obs["theta_dot"], memory)
         return self._local(tensors, lambda: self._to_local(obs, memory))
 
-    def _to_local(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
+    def _to_local(self, obs: TensorDict, memory: torch.Tensor):
         d = self.frames.position(obs) - memory
         position = torch.addcmul(self._start, d.flip(-1) if self._swap else d, self._sign)
         turned, theta_dot = self.frames.headings(obs)
-        heading = turned[:, self._turn : self._turn + 1]
-        return torch.cat([position, heading, theta_dot], dim=-1)
+        return torch.cat([position, turned[self._turn], theta_dot], dim=-1), position
 
     def features(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
         return self.local_state(obs, memory)
 
     def terminated(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        position = self.local_state(obs, memory)[:, :2]
+        position = self._local_frame(obs, memory)[1]
         return _at_goal(position, self._goal) | _outside(position)
 
 
@@ -464,8 +468,8 @@ class ShipMonitor(nn.Module):
                 "gate_steps": rows["steps"] * gate,
             },
         )
-        rows["steps"] = torch.where(ended, 0.0, rows["steps"])
-        rows["calls"] = torch.where(ended, 0.0, rows["calls"])
+        rows["steps"] = rows["steps"].masked_fill(ended, 0.0)
+        rows["calls"] = rows["calls"].masked_fill(ended, 0.0)
         return ended.view(p, -1).sum(1), self._trigger()
 
     def _trigger(self) -> torch.Tensor:

@@ -204,6 +204,11 @@ class ShipSteeringEnv(BatchedEnv):
         self.success = self.success & ~mask
 
     def _check_action(self, action: torch.Tensor) -> torch.Tensor:
+        """The turning rates ``[B]``; a bad one raises unless its row is being reset.
+
+        A row being reset sails whatever it was sent (even NaN): the reset replaces its state,
+        and ``BatchedEnv.step`` its reward, duration and termination.
+        """
         action = action.float()
         if action.shape not in ((self.batch_size,), (self.batch_size, 1)):
             raise ValueError(
@@ -211,34 +216,40 @@ class ShipSteeringEnv(BatchedEnv):
             )
         rate = action.reshape(self.batch_size)
         ok = rate.abs() <= MAX_TURN  # NaN compares False
-        if not bool((ok | self.done).all()):  # a row being reset may send anything
+        if not bool((ok | self.done).all()):
             row = int((~ok & ~self.done).nonzero()[0])
             raise ValueError(
                 f"turning rate {float(rate[row])} outside [-{MAX_TURN}, {MAX_TURN}] "
                 f"deg/s (env row {row})"
             )
-        return torch.where(ok, rate, 0.0)
+        return rate
+
+    def _sail(self, state: torch.Tensor, rate: torch.Tensor):
+        """One sampling interval of every row: ``(next state, crossed the gate, stops)``."""
+        nxt = ship_dynamics(state, rate, self.params)
+        position = nxt[:, :2]
+        crossed = gate_crossed(state[:, :2], position, self.params)
+        return nxt, crossed, crossed | out_of_bounds(position)
 
     def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``action_repeat`` sampling intervals; a row stops where it crosses the gate or leaves.
 
-        ``active`` rows are still sailing; ``intervals`` counts the intervals each row sailed.
+        Every row sails the first interval; ``active`` rows sail the next ones, and
+        ``intervals`` counts the intervals each row sailed.
         """
-        rate, state, params = self._check_action(action), self.state, self.params
-        active = torch.ones(self.batch_size, dtype=torch.bool, device=self.device)
-        success = torch.zeros_like(active)
-        intervals = torch.zeros(self.batch_size, device=self.device)
-        for _ in range(self.action_repeat):
-            nxt = ship_dynamics(state, rate, params)
-            crossed = gate_crossed(state[:, :2], nxt[:, :2], params) & active
-            stop = crossed | out_of_bounds(nxt[:, :2])
+        rate = self._check_action(action)
+        state, success, stop = self._sail(self.state, rate)
+        active = ~stop
+        intervals = torch.ones(self.batch_size, device=self.device)
+        for _ in range(self.action_repeat - 1):
+            nxt, crossed, stop = self._sail(state, rate)
             state = torch.where(active[:, None], nxt, state)
             intervals += active
-            success |= crossed
+            success |= crossed & active
             active &= ~stop
         self.state, self.success = state, success
         reward = torch.full((self.batch_size,), -1.0, device=self.device)
-        return reward, intervals * params.dt, ~active
+        return reward, intervals * self.params.dt, ~active
 
     def _observe(self) -> dict[str, torch.Tensor]:
         state = self.state.clone()
