@@ -295,7 +295,7 @@ class DirectionSubtask(Subtask):
 
     The rotation ``R`` of ``k`` has one entry +-1 per row, so ``R (p - origin)`` swaps and negates
     the components of ``p - origin``: the same numbers as ``to_local``'s products and sums (for
-    finite positions), with fewer ops. The local state is computed once per observation and
+    finite positions), with fewer ops. The local position is computed once per observation and
     memory (``terminated`` and ``features`` share it), from ``frames`` (shared by the
     hierarchy's nodes).
 
@@ -319,28 +319,25 @@ class DirectionSubtask(Subtask):
         self._local = _Memo()
 
     def remember(self, obs: TensorDict) -> torch.Tensor:
-        return self.frames.position(obs)
+        return self.frames.position(obs)  # shared: read only (the graph copies it)
 
-    def local_state(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        """The local state ``[B, 4]`` (``to_local`` of the observation, origin ``memory``)."""
-        return self._local_frame(obs, memory)[0]
+    def local_position(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
+        """``local_start + R (p - origin)`` ``[B, 2]``, computed once per input (read only)."""
+        tensors = (obs["x"], obs["y"], memory)
 
-    def _local_frame(self, obs: TensorDict, memory: torch.Tensor):
-        """``(local state [B, 4], local position [B, 2])``, computed once per input."""
-        tensors = (obs["x"], obs["y"], obs["theta"], obs["theta_dot"], memory)
-        return self._local(tensors, lambda: self._to_local(obs, memory))
+        def compute():
+            d = self.frames.position(obs) - memory
+            return torch.addcmul(self._start, d.flip(-1) if self._swap else d, self._sign)
 
-    def _to_local(self, obs: TensorDict, memory: torch.Tensor):
-        d = self.frames.position(obs) - memory
-        position = torch.addcmul(self._start, d.flip(-1) if self._swap else d, self._sign)
-        turned, theta_dot = self.frames.headings(obs)
-        return torch.cat([position, turned[self._turn], theta_dot], dim=-1), position
+        return self._local(tensors, compute)
 
     def features(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        return self.local_state(obs, memory)
+        turned, theta_dot = self.frames.headings(obs)
+        position = self.local_position(obs, memory)
+        return torch.cat([position, turned[self._turn], theta_dot], dim=-1)
 
     def terminated(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        position = self._local_frame(obs, memory)[1]
+        position = self.local_position(obs, memory)
         return _at_goal(position, self._goal) | _outside(position)
 
 

@@ -92,10 +92,12 @@ def test_direction_local_state_follows_changed_inputs():
     obs = {"x": state[:, 0], "y": state[:, 1], "theta": state[:, 2], "theta_dot": state[:, 3]}
     memory = torch.zeros(50, 9, 2)
     memory[:, 2] = state[:, :2] - 5.0
-    first = node.features(obs, memory[:, 2]).clone()
-    assert node.features(obs, memory[:, 2]) is node.features(obs, memory[:, 2])  # one per input
+    first = node.features(obs, memory[:, 2])
+    position = node.local_position(obs, memory[:, 2])
+    assert node.local_position(obs, memory[:, 2]) is position  # computed once per input
     other.features(obs, memory[:, 7])  # the shared per-observation values stay valid
     assert torch.equal(node.features(obs, memory[:, 2]), first)
+    assert node.local_position(obs, memory[:, 2]) is position
     memory[:, 2] += 1.0  # in place: the local frame moves
     assert torch.equal(
         node.features(obs, memory[:, 2]), _rotation_by_products(obs, memory[:, 2], 2)
