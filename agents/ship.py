@@ -38,7 +38,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, wrap_degrees
+from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, out_of_bounds, wrap_degrees
 from hrl_torch.executor import LEVEL, PRIMITIVE, ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Greedy
@@ -68,6 +68,10 @@ GRID_CELLS = 20  # per axis: 400 high-level states
 ROTATION = torch.tensor([90, 0, 0, -90, -90, 180, 180, 90])
 _COS = torch.tensor([0, 1, 1, 0, 0, -1, -1, 0], dtype=torch.float32)
 _SIN = torch.tensor([1, 0, 0, -1, -1, 0, 0, 1], dtype=torch.float32)
+#: the distinct rotations, and the one of each direction (its features' heading)
+TURNS = torch.tensor([90.0, 0.0, -90.0, 180.0])
+TURN_OF_DIRECTION = (0, 1, 1, 2, 2, 3, 3, 0)
+_GRID_STRIDES = torch.tensor([1, GRID_CELLS])  # (col, row)
 
 
 def _rotate(vec: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor) -> torch.Tensor:
@@ -112,23 +116,47 @@ def bearing(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return torch.rad2deg(torch.atan2(d[:, 0], d[:, 1]))
 
 
+def _at_goal(position: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    """``[B]``: ``position [B, 2]`` within ``GOAL_RADIUS`` of ``goal`` (``[2]`` or ``[B, 2]``)."""
+    return (position - goal).norm(dim=-1) <= GOAL_RADIUS
+
+
+def _outside(position: torch.Tensor) -> torch.Tensor:
+    """``[B]``: ``position [B, 2]`` is outside ``0 <= x, y <= 150``."""
+    return ((position < 0) | (position > LOCAL_SIZE)).any(-1)
+
+
+def _shaping(local: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    """``G`` of local states ``[B, 4]`` toward ``goal`` (``[2]`` or ``[B, 2]``)."""
+    error = wrap_degrees(local[:, 2] - bearing(local[:, :2], goal))
+    return torch.exp(error * error / -(SHAPING_WIDTH**2)) - 1.0  # -(e^2) / w^2, exactly
+
+
+def _internal_reward(local: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    """``G`` + 100 success - 100 failure of local states ``[B, 4]`` toward ``goal``.
+
+    Success is tested first; the terminal part is -100 * 0 = -0.0 on neither, which leaves
+    ``G`` (never -0.0) unchanged.
+    """
+    position = local[:, :2]
+    failure = FAILURE_REWARD * _outside(position)
+    terminal = failure.masked_fill(_at_goal(position, goal), SUCCESS_REWARD)
+    return _shaping(local, goal) + terminal
+
+
 def local_success(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
     """``[B]``: within ``GOAL_RADIUS`` of the local goal."""
-    goal = LOCAL_GOAL.to(local.device)[subtask]
-    return (local[:, :2] - goal).norm(dim=-1) <= GOAL_RADIUS
+    return _at_goal(local[:, :2], LOCAL_GOAL.to(local.device)[subtask])
 
 
 def local_failure(local: torch.Tensor) -> torch.Tensor:
     """``[B]``: outside ``0 <= x, y <= 150``."""
-    position = local[:, :2]
-    return ((position < 0) | (position > LOCAL_SIZE)).any(-1)
+    return _outside(local[:, :2])
 
 
 def orientation_shaping(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
     """``G = exp(-|theta - theta_hat|^2 / 30^2) - 1`` ``[B]``, in (-1, 0]."""
-    goal = LOCAL_GOAL.to(local.device)[subtask]
-    error = wrap_degrees(local[:, 2] - bearing(local[:, :2], goal))
-    return torch.exp(-(error**2) / SHAPING_WIDTH**2) - 1.0
+    return _shaping(local, LOCAL_GOAL.to(local.device)[subtask])
 
 
 def internal_reward(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
@@ -136,10 +164,13 @@ def internal_reward(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
 
     The env's -1 per step is external (it propagates to the root) and is not included.
     """
-    success = local_success(local, subtask)
-    failure = local_failure(local) & ~success
-    terminal = torch.where(success, SUCCESS_REWARD, 0.0) + torch.where(failure, FAILURE_REWARD, 0.0)
-    return orientation_shaping(local, subtask) + terminal
+    return _internal_reward(local, LOCAL_GOAL.to(local.device)[subtask])
+
+
+def grid_cell(position: torch.Tensor) -> torch.Tensor:
+    """``grid_state`` of positions ``[B, 2]`` = (x, y)."""
+    cell = torch.floor(position / (SIZE / GRID_CELLS)).long().clamp(0, GRID_CELLS - 1)
+    return (cell * _GRID_STRIDES.to(cell.device)).sum(-1)
 
 
 def grid_state(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -147,10 +178,7 @@ def grid_state(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
     Positions outside [0, 1000] (a failed episode's last observation) clamp to edge cells.
     """
-    cell = SIZE / GRID_CELLS
-    col = torch.floor(x / cell).long().clamp(0, GRID_CELLS - 1)
-    row = torch.floor(y / cell).long().clamp(0, GRID_CELLS - 1)
-    return row * GRID_CELLS + col
+    return grid_cell(torch.stack([x, y], dim=-1))
 
 
 def low_level_tile_coder() -> TileCoder:
@@ -184,10 +212,10 @@ LOW_LEVEL_GUARD = 250
 
 def low_level_reward(subtask: int):
     """Internal reward of a low-level subtask from its local state at ``s'`` (``[R, 4]``)."""
+    goal = LOCAL_GOAL[subtask]
 
     def reward(local: torch.Tensor) -> torch.Tensor:
-        kind = torch.full((local.shape[0],), subtask, dtype=torch.long, device=local.device)
-        return internal_reward(local, kind)
+        return _internal_reward(local, goal.to(local.device))
 
     reward.__name__ = f"{SUBTASK_NAMES[subtask]}_internal_reward"
     return reward
@@ -197,46 +225,127 @@ def low_level_reward(subtask: int):
 LOW_LEVEL_REWARDS = (low_level_reward(DIAGONAL), low_level_reward(STRAIGHT))
 
 
+class _Memo:
+    """The value last computed from some tensors, returned again while they are unchanged.
+
+    Unchanged: the same tensor, or a view of the same memory (a subtask's memory is a new view
+    at every call), at the same version (in-place writes bump it). The memo keeps the tensors,
+    so their memory is not reused while it holds them.
+    """
+
+    def __init__(self) -> None:
+        self._key: list[tuple[torch.Tensor, int]] = []
+        self._value = None
+
+    def __call__(self, tensors: tuple[torch.Tensor, ...], compute):
+        if any(t.is_inference() for t in tensors):  # no version counter
+            return compute()
+        if len(tensors) != len(self._key) or not all(map(_unchanged, tensors, self._key)):
+            self._value = compute()
+            self._key = [(t, t._version) for t in tensors]
+        return self._value
+
+
+def _unchanged(t: torch.Tensor, key: tuple[torch.Tensor, int]) -> bool:
+    ref, version = key
+    same = t is ref or (
+        t.data_ptr() == ref.data_ptr()
+        and t.device == ref.device
+        and t.dtype == ref.dtype
+        and t.shape == ref.shape
+        and t.stride() == ref.stride()
+    )
+    return same and t._version == version
+
+
+class ShipFrames:
+    """What the ship's predicates share within a step, each computed once per observation.
+
+    The graph calls every direction's ``terminated`` and ``features`` (and the root's
+    ``abstract`` and pseudo reward, every direction's ``remember``) on the same observation:
+    they share the position ``(x, y)`` ``[B, 2]`` and the heading turned by each distinct
+    rotation, ``wrap(theta + TURNS)`` ``[B, 4]`` (with ``theta_dot`` as a column ``[B, 1]``).
+    """
+
+    def __init__(self) -> None:
+        self._position, self._headings = _Memo(), _Memo()
+
+    def position(self, obs: TensorDict) -> torch.Tensor:
+        """``(x, y)`` ``[B, 2]``."""
+        x, y = obs["x"], obs["y"]
+        return self._position((x, y), lambda: torch.stack([x, y], dim=-1))
+
+    def headings(self, obs: TensorDict) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
+        """``(wrap(theta + TURNS[j]) [B, 1] for each j, theta_dot [B, 1])``."""
+        theta, theta_dot = obs["theta"], obs["theta_dot"]
+
+        def compute():
+            turned = wrap_degrees(theta[:, None] + TURNS.to(theta.device))
+            return turned.split(1, dim=1), theta_dot[:, None]
+
+        return self._headings((theta, theta_dot), compute)
+
+
 class DirectionSubtask(Subtask):
     """Steer toward direction ``k`` in the local frame of its low-level subtask (Figure 5.5).
 
     Remembers where it started (the frame's origin); its features are the local state
     ``(x, y, theta, theta_dot)`` (``to_local``, with the rotation of ``k`` as constants); it
     ends on local success or failure.
+
+    The rotation ``R`` of ``k`` has one entry +-1 per row, so ``R (p - origin)`` swaps and negates
+    the components of ``p - origin``: the same numbers as ``to_local``'s products and sums (for
+    finite positions), with fewer ops. The local position is computed once per observation and
+    memory (``terminated`` and ``features`` share it), from ``frames`` (shared by the
+    hierarchy's nodes).
+
+    Args:
+        k: the direction, ``0`` (N) to ``7`` (NW).
+        frames: the hierarchy's shared per-observation values (default: this node's own).
     """
 
-    def __init__(self, k: int) -> None:
+    def __init__(self, k: int, frames: ShipFrames | None = None) -> None:
         super().__init__(DIRECTION_NODES[k], ["Turn"], n_features=4, memory_size=2)
         self.direction = k
         self.subtask = int(SUBTASK_OF_DIRECTION[k])
-        self._cos, self._sin = float(_COS[k]), float(_SIN[k])
-        self._turn = float(ROTATION[k])
-        self._start = [float(v) for v in LOCAL_START[self.subtask]]
+        self.frames = frames if frames is not None else ShipFrames()
+        cos, sin = float(_COS[k]), float(_SIN[k])
+        self._swap = cos == 0  # R d = (s dy, -s dx) or (c dx, c dy)
+        sign = [sin, -sin] if self._swap else [cos, cos]
+        self.register_buffer("_sign", torch.tensor(sign), persistent=False)
+        self.register_buffer("_start", LOCAL_START[self.subtask].clone(), persistent=False)
+        self.register_buffer("_goal", LOCAL_GOAL[self.subtask].clone(), persistent=False)
+        self._turn = TURN_OF_DIRECTION[k]
+        self._local = _Memo()
 
     def remember(self, obs: TensorDict) -> torch.Tensor:
-        return torch.stack([obs["x"], obs["y"]], dim=-1)
+        return self.frames.position(obs)  # shared: read only (the graph copies it)
 
-    def _position(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        dx, dy = obs["x"] - memory[:, 0], obs["y"] - memory[:, 1]
-        c, s = self._cos, self._sin
-        return torch.stack([dx * c + dy * s + self._start[0], dy * c - dx * s + self._start[1]], -1)
+    def local_position(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
+        """``local_start + R (p - origin)`` ``[B, 2]``, computed once per input (read only)."""
+        tensors = (obs["x"], obs["y"], memory)
+
+        def compute():
+            d = self.frames.position(obs) - memory
+            return torch.addcmul(self._start, d.flip(-1) if self._swap else d, self._sign)
+
+        return self._local(tensors, compute)
 
     def features(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        position = self._position(obs, memory)
-        theta = wrap_degrees(obs["theta"] + self._turn)
-        return torch.cat([position, theta[:, None], obs["theta_dot"][:, None]], dim=-1)
+        turned, theta_dot = self.frames.headings(obs)
+        position = self.local_position(obs, memory)
+        return torch.cat([position, turned[self._turn], theta_dot], dim=-1)
 
     def terminated(self, obs: TensorDict, memory: torch.Tensor) -> torch.Tensor:
-        position = self._position(obs, memory)
-        kind = torch.full_like(obs["x"], self.subtask, dtype=torch.long)
-        return local_success(position, kind) | local_failure(position)
+        position = self.local_position(obs, memory)
+        return _at_goal(position, self._goal) | _outside(position)
 
 
-def _root_reward(out_of_bounds_reward: float):
+def _root_reward(out_of_bounds_reward: float, frames: ShipFrames):
     def pseudo(obs: TensorDict) -> torch.Tensor:
-        position = torch.stack([obs["x"], obs["y"]], dim=-1)
-        gone = ((position < 0) | (position > SIZE)).any(-1) & ~obs["success"]
-        return GATE_REWARD * obs["success"].float() + out_of_bounds_reward * gone.float()
+        success = obs["success"]
+        gone = out_of_bounds(frames.position(obs)) & ~success
+        return GATE_REWARD * success + out_of_bounds_reward * gone  # bool * float: 1.0 or 0.0
 
     return pseudo
 
@@ -247,14 +356,15 @@ def ship_hierarchy(out_of_bounds_reward: float = 0.0) -> TaskGraph:
     The root's reward is the env's -1 per step plus ``GATE_REWARD`` when the ship passes the
     gate (and ``out_of_bounds_reward`` when it leaves the square; the text gives none).
     """
+    frames = ShipFrames()
     root = Subtask(
         "Root",
         DIRECTION_NODES,
         n_states=GRID_CELLS * GRID_CELLS,
-        abstract=lambda o: grid_state(o["x"], o["y"]),
-        pseudo_reward=_root_reward(out_of_bounds_reward),
+        abstract=lambda o: grid_cell(frames.position(o)),
+        pseudo_reward=_root_reward(out_of_bounds_reward, frames),
     )
-    directions = [DirectionSubtask(k) for k in range(N_DIRECTIONS)]
+    directions = [DirectionSubtask(k, frames) for k in range(N_DIRECTIONS)]
     return TaskGraph("Root", [root, *directions, Primitive("Turn", action_dim=1)])
 
 
@@ -265,7 +375,7 @@ def flat_graph(out_of_bounds_reward: float = 0.0) -> TaskGraph:
         ["Turn"],
         features=lambda o: o["observation"],
         n_features=4,
-        pseudo_reward=_root_reward(out_of_bounds_reward),
+        pseudo_reward=_root_reward(out_of_bounds_reward, ShipFrames()),
     )
     return TaskGraph("Root", [root, Primitive("Turn", action_dim=1)])
 
@@ -334,11 +444,11 @@ class ShipMonitor(nn.Module):
         if "steps" not in self._rows or self._rows["steps"].shape[0] != b:
             self._rows = {"steps": torch.zeros(b), "calls": torch.zeros(b)}
         rows = self._rows
-        rows["steps"] += prim["valid"].float()
+        rows["steps"] += prim["valid"]
         root = level["valid"][:, 0]
         ended = root & (level["terminal"][:, 0] | level["truncated"][:, 0])
         if self.hierarchical:
-            rows["calls"] += root.float()
+            rows["calls"] += root
             executed = root & level["child_done"][:, 0]
             kind = self.kind_of_node[level["node"][:, 1]]
             local = level["next_features"][:, 1]
@@ -355,17 +465,22 @@ class ShipMonitor(nn.Module):
                 "gate_steps": rows["steps"] * gate,
             },
         )
-        rows["steps"] = torch.where(ended, 0.0, rows["steps"])
-        rows["calls"] = torch.where(ended, 0.0, rows["calls"])
+        rows["steps"] = rows["steps"].masked_fill(ended, 0.0)
+        rows["calls"] = rows["calls"].masked_fill(ended, 0.0)
         return ended.view(p, -1).sum(1), self._trigger()
 
     def _trigger(self) -> torch.Tensor:
-        fired = torch.ones(self.episodes.events.shape[0], dtype=torch.bool)
-        for bins in self.low:
-            done = bins.completed()
-            rate = bins.block_means()["success"]
-            last = rate.gather(1, (done - 1).clamp_min(0)[:, None]).squeeze(1)
-            fired &= (done > 0) & (last >= self.trigger_rate)
+        """Each low-level subtask's last completed block succeeded ``trigger_rate`` of the time.
+
+        Both subtasks at once: only the last completed block's sums are read (its count is the
+        block size, so its mean is what ``EpisodeBins.block_means`` gives).
+        """
+        done = torch.stack([bins.completed() for bins in self.low])  # [2, P]
+        sums = torch.stack([bins.sums for bins in self.low])  # [2, 2, P, n_bins + 1]
+        last = (done - 1).clamp_min(0)[:, None, :, None].expand(-1, 2, -1, 1)
+        count, successes = sums.gather(3, last).squeeze(3).unbind(1)
+        rate = successes / count.clamp_min(1)
+        fired = ((done > 0) & (rate >= self.trigger_rate)).all(0)
         return fired & self.hierarchical
 
 

@@ -81,10 +81,13 @@ class ShipParams:
 
 
 def wrap_degrees(angle: torch.Tensor) -> torch.Tensor:
-    """Angles into [-180, 180)."""
-    shifted = torch.remainder(angle + 180.0, 360.0)
-    shifted = torch.where(shifted >= 360.0, shifted - 360.0, shifted)  # float rounding
-    return shifted - 180.0
+    """Angles into [-180, 180).
+
+    ``remainder(angle + 180, 360)`` lies in [0, 360]: it rounds to 360 when ``angle + 180`` is a
+    tiny negative number. The second ``remainder`` maps that 360 to 0 and leaves [0, 360) as it
+    is (no comparison and no ``where``: both are slow per element on CPU).
+    """
+    return torch.remainder(torch.remainder(angle + 180.0, 360.0), 360.0) - 180.0
 
 
 def ship_dynamics(
@@ -123,15 +126,13 @@ def gate_crossed(
     """Whether the segments ``start -> end`` (``[..., 2]`` positions) cross the gate: ``[...]``.
 
     The segment must go from ``y < gate_y`` to ``y >= gate_y`` (or back) and meet the line at an
-    x in ``[gate_x[0], gate_x[1]]``.
+    x in ``[gate_x[0], gate_x[1]]``. A level segment (``dy = 0``) never changes side, so its
+    ``x_at`` (inf or NaN) is never looked at.
     """
-    below0 = start[..., 1] < params.gate_y
-    below1 = end[..., 1] < params.gate_y
-    dy = end[..., 1] - start[..., 1]
-    safe_dy = torch.where(dy == 0, torch.ones_like(dy), dy)
-    frac = (params.gate_y - start[..., 1]) / safe_dy
-    x_at = start[..., 0] + frac * (end[..., 0] - start[..., 0])
-    return (below0 != below1) & (x_at >= params.gate_x[0]) & (x_at <= params.gate_x[1])
+    (x0, y0), (x1, y1) = start.unbind(-1), end.unbind(-1)
+    sides = (y0 < params.gate_y) != (y1 < params.gate_y)
+    x_at = x0 + (params.gate_y - y0) / (y1 - y0) * (x1 - x0)
+    return sides & (x_at.clamp(*params.gate_x) == x_at)  # NaN: False, as a comparison
 
 
 def out_of_bounds(position: torch.Tensor) -> torch.Tensor:
@@ -176,6 +177,8 @@ class ShipSteeringEnv(BatchedEnv):
         self.params = params
         self.fixed_start = None if fixed_start is None else self._as_rows(fixed_start)
         self.state = torch.zeros(self.batch_size, 4, device=self.device)
+        self._low = torch.tensor([0.0, 0.0, -180.0, -MAX_TURN], device=self.device)
+        self._span = torch.tensor([SIZE, SIZE, 180.0, MAX_TURN], device=self.device) - self._low
         self.success = torch.zeros(self.batch_size, dtype=torch.bool, device=self.device)
 
     def _as_rows(self, configs: torch.Tensor) -> torch.Tensor:
@@ -194,45 +197,58 @@ class ShipSteeringEnv(BatchedEnv):
 
     def _reset_rows(self, mask: torch.Tensor) -> None:
         u = self.rng.uniform(4)  # drawn for every row so the stream never depends on data
-        low = torch.tensor([0.0, 0.0, -180.0, -MAX_TURN], device=self.device)
-        high = torch.tensor([SIZE, SIZE, 180.0, MAX_TURN], device=self.device)
-        fresh = low + (high - low) * u
+        fresh = self._low + self._span * u
         if self.fixed_start is not None:
             fresh = self.fixed_start
         self.state = torch.where(mask[:, None], fresh, self.state)
         self.success = self.success & ~mask
 
     def _check_action(self, action: torch.Tensor) -> torch.Tensor:
+        """The turning rates ``[B]``; a bad one raises unless its row is being reset.
+
+        A row being reset sails whatever it was sent (even NaN): the reset replaces its state,
+        and ``BatchedEnv.step`` its reward, duration and termination.
+        """
         action = action.float()
         if action.shape not in ((self.batch_size,), (self.batch_size, 1)):
             raise ValueError(
                 f"action must have shape [{self.batch_size}, 1], got {tuple(action.shape)}"
             )
         rate = action.reshape(self.batch_size)
-        bad = ~(rate.abs() <= MAX_TURN) & ~self.done  # NaN compares False
-        if bool(bad.any()):
-            row = int(bad.nonzero()[0])
+        ok = rate.abs() <= MAX_TURN  # NaN compares False
+        if not bool((ok | self.done).all()):
+            row = int((~ok & ~self.done).nonzero()[0])
             raise ValueError(
                 f"turning rate {float(rate[row])} outside [-{MAX_TURN}, {MAX_TURN}] "
                 f"deg/s (env row {row})"
             )
-        return torch.where(rate.abs() <= MAX_TURN, rate, torch.zeros_like(rate))
+        return rate
+
+    def _sail(self, state: torch.Tensor, rate: torch.Tensor):
+        """One sampling interval of every row: ``(next state, crossed the gate, stops)``."""
+        nxt = ship_dynamics(state, rate, self.params)
+        position = nxt[:, :2]
+        crossed = gate_crossed(state[:, :2], position, self.params)
+        return nxt, crossed, crossed | out_of_bounds(position)
 
     def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``action_repeat`` sampling intervals; a row stops where it crosses the gate or leaves.
+
+        Every row sails the first interval; ``active`` rows sail the next ones, and
+        ``intervals`` counts the intervals each row sailed.
+        """
         rate = self._check_action(action)
-        active = torch.ones(self.batch_size, dtype=torch.bool, device=self.device)
-        success = torch.zeros_like(active)
-        intervals = torch.zeros(self.batch_size, device=self.device)
-        for _ in range(self.action_repeat):
-            nxt = ship_dynamics(self.state, rate, self.params)
-            crossed = gate_crossed(self.state[:, :2], nxt[:, :2], self.params) & active
-            failed = out_of_bounds(nxt[:, :2]) & active & ~crossed
-            self.state = torch.where(active[:, None], nxt, self.state)
-            intervals += active.float()
-            success |= crossed
-            active = active & ~crossed & ~failed
-        self.success = success
-        reward = -torch.ones(self.batch_size, device=self.device)
+        state, success, stop = self._sail(self.state, rate)
+        active = ~stop
+        intervals = torch.ones(self.batch_size, device=self.device)
+        for _ in range(self.action_repeat - 1):
+            nxt, crossed, stop = self._sail(state, rate)
+            state = torch.where(active[:, None], nxt, state)
+            intervals += active
+            success |= crossed & active
+            active &= ~stop
+        self.state, self.success = state, success
+        reward = torch.full((self.batch_size,), -1.0, device=self.device)
         return reward, intervals * self.params.dt, ~active
 
     def _observe(self) -> dict[str, torch.Tensor]:

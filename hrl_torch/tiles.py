@@ -68,19 +68,42 @@ def tile_indices(
         ``[..., T]`` long indices in ``[0, T * prod(resolution))``, one per tiling; tiling ``t``
         gives an index in ``[t * prod(resolution), (t + 1) * prod(resolution))``.
     """
-    res = resolution.to(x.dtype)
-    scale = res / (high - low)
-    strides = _strides(resolution).to(x.dtype)
-    base = torch.arange(offsets.shape[0], device=x.device) * int(torch.prod(resolution))
-    return _active_tiles(x, low, scale, offsets, res, wrap, strides, base)
+    return _active_tiles(x, **_layout(low, high, resolution, offsets, wrap, x.dtype))
 
 
-def _active_tiles(x, low, scale, offsets, res, wrap, strides, base) -> torch.Tensor:
-    """``tile_indices`` on precomputed constants, in float (exact: indices stay below 2^24)."""
-    shifted = ((x - low) * scale).unsqueeze(-2) + offsets  # [..., T, D] in tile widths
-    cell = shifted.floor()
-    cell = torch.where(wrap, cell.remainder(res), torch.minimum(cell.clamp_min(0), res - 1))
-    return (cell * strides).sum(-1).long() + base  # row-major over the dimensions
+def _layout(low, high, resolution, offsets, wrap, dtype: torch.dtype) -> dict:
+    """The constants of ``_active_tiles``, shaped for its dimension-major planes ``[D, T, n]``."""
+    res = resolution.to(dtype)
+    n_tilings, n_dims = offsets.shape
+    column = (n_dims, 1, 1)
+    return {
+        "low": low[:, None],
+        "scale": (res / (high - low))[:, None],
+        "offsets": offsets.t().reshape(n_dims, n_tilings, 1),
+        "max_cell": (res - 1).view(column),
+        "strides": _strides(resolution).to(dtype).view(column),
+        "base": torch.arange(n_tilings, device=resolution.device) * int(torch.prod(resolution)),
+        "wrap_dims": [(d, float(res[d])) for d in range(n_dims) if bool(wrap[d])],
+    }
+
+
+def _active_tiles(x, low, scale, offsets, max_cell, strides, base, wrap_dims) -> torch.Tensor:
+    """``tile_indices`` on the constants of ``_layout``, in float (exact: indices stay below 2^24).
+
+    Dimension-major: the cells are planes ``[D, T, n]``, so every op runs along the ``n``
+    points (broadcasting over a short last dimension is slow on CPU), and a wrapping
+    dimension's ``remainder`` only touches its own plane. Its cells are then in
+    ``[0, res)`` already, so clipping every plane to ``[0, res - 1]`` leaves them alone.
+    """
+    lead, n_dims = x.shape[:-1], x.shape[-1]
+    points = (x if x.dim() == 2 else x.reshape(-1, n_dims)).t().contiguous()  # [D, n]
+    cell = (((points - low) * scale).unsqueeze(1) + offsets).floor_()  # tile widths, floored
+    for d, res in wrap_dims:
+        cell[d].remainder_(res)
+    torch.minimum(cell.clamp_min_(0), max_cell, out=cell)
+    flat = cell.mul_(strides).sum(0)  # [T, n]: row-major over the dimensions
+    tiles = flat.t().to(torch.long, memory_format=torch.contiguous_format).add_(base)
+    return tiles if x.dim() == 2 else tiles.view(*lead, base.shape[0])
 
 
 def _strides(resolution: torch.Tensor) -> torch.Tensor:
@@ -133,22 +156,22 @@ class TileCoder(nn.Module):
         self.n_features = n_tilings * self.tiles_per_tiling
         if self.tiles_per_tiling >= 2**24:
             raise ValueError("a tiling of 2^24 tiles or more is not supported (float indices)")
-        res = self.resolution.float()
-        self.register_buffer("_res", res, persistent=False)
-        self.register_buffer("_scale", res / (self.high - self.low), persistent=False)
-        self.register_buffer("_strides", _strides(self.resolution).float(), persistent=False)
-        base = torch.arange(n_tilings) * self.tiles_per_tiling
-        self.register_buffer("_base", base, persistent=False)
+        layout = _layout(
+            self.low, self.high, self.resolution, self.offsets, self.wrap, torch.float32
+        )
+        self._wrap_dims = layout.pop("wrap_dims")
+        for name, value in layout.items():
+            self.register_buffer(f"_{name}", value, persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Active tiles of points ``x [..., D]``: ``[..., T]`` long."""
         return _active_tiles(
             x.float(),
-            self.low,
+            self._low,
             self._scale,
-            self.offsets,
-            self._res,
-            self.wrap,
+            self._offsets,
+            self._max_cell,
             self._strides,
             self._base,
+            self._wrap_dims,
         )

@@ -108,8 +108,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tiles-offset-sign",
         "hrl_torch/tiles.py",
-        "shifted = ((x - low) * scale).unsqueeze(-2) + offsets",
-        "shifted = ((x - low) * scale).unsqueeze(-2) - offsets",
+        "cell = (((points - low) * scale).unsqueeze(1) + offsets).floor_()",
+        "cell = (((points - low) * scale).unsqueeze(1) - offsets).floor_()",
         "tilings displaced the wrong way",
         ("tests/test_tiles.py",),
     ),

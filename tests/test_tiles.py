@@ -112,6 +112,40 @@ def test_pure_function_matches_module_and_leading_dims():
     assert math.prod(coder.resolution.tolist()) == coder.tiles_per_tiling
 
 
+def _point_major(x, coder):
+    """The tile indices written point by point (``[..., T, D]`` cells, one ``where``)."""
+    res = coder.resolution.to(x.dtype)
+    shifted = ((x - coder.low) * (res / (coder.high - coder.low))).unsqueeze(-2) + coder.offsets
+    cell = shifted.floor()
+    cell = torch.where(coder.wrap, cell.remainder(res), torch.minimum(cell.clamp_min(0), res - 1))
+    strides = torch.cumprod(torch.cat([res.new_ones(1), res.flip(0)[:-1]]), 0).flip(0)
+    base = torch.arange(coder.n_tilings) * coder.tiles_per_tiling
+    return (cell * strides).sum(-1).long() + base
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_dimension_major_planes_give_the_point_major_indices(dtype):
+    coder = TileCoder(
+        [0.0, 0.0, -180.0, -15.0],
+        [150.0, 150.0, 180.0, 15.0],
+        [5, 5, 36, 5],
+        9,
+        wrap=[False, False, True, False],
+    )  # the ship's low-level coder
+    g = torch.Generator().manual_seed(0)
+    span = torch.tensor([150.0, 150.0, 360.0, 30.0])
+    x = (torch.rand(50_000, 4, generator=g) * 3 - 1) * span - torch.tensor([0, 0, 180.0, 15.0])
+    edges = torch.randint(-40, 80, (20_000, 4), generator=g) / 40 * span  # on tile borders
+    for points in (x, edges, x.view(10, -1, 4)):
+        points = points.to(dtype)
+        want = _point_major(points.float(), coder)
+        assert torch.equal(coder(points), want)
+        got = tile_indices(
+            points, coder.low, coder.high, coder.resolution, coder.offsets, coder.wrap
+        )
+        assert torch.equal(got, _point_major(points, coder))
+
+
 def test_bad_arguments():
     with pytest.raises(ValueError):
         TileCoder([0.0], [0.0], [3], 2)

@@ -6,20 +6,31 @@ import pytest
 import torch
 
 from agents.ship import (
+    _COS,
+    _SIN,
+    DIAGONAL,
     DIRECTION_NODES,
     DOMAIN,
+    LOCAL_GOAL,
+    LOCAL_START,
     LOW_LEVEL_GUARD,
+    LOW_LEVEL_REWARDS,
+    ROTATION,
+    STRAIGHT,
     SUBTASK_OF_DIRECTION,
     DirectionSubtask,
+    ShipFrames,
+    bearing,
     flat_graph,
     internal_reward,
     local_failure,
     local_success,
     make_hybrid,
+    orientation_shaping,
     ship_hierarchy,
     to_local,
 )
-from envs.ship import ShipSteeringEnv
+from envs.ship import ShipSteeringEnv, wrap_degrees
 from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.cli import main as cli_main
 from hrl_torch.collector import collect
@@ -47,6 +58,77 @@ def test_direction_features_and_termination_equal_the_frame_functions(k):
     expected = local_success(local, kind) | local_failure(local)
     assert torch.equal(node.terminated(obs, origin), expected)
     assert expected.any() and not expected.all()
+
+
+def _rotation_by_products(obs, origin, k):
+    """The local state with the rotation written as products and sums (``to_local``'s form)."""
+    c, s = float(_COS[k]), float(_SIN[k])
+    start = LOCAL_START[int(SUBTASK_OF_DIRECTION[k])]
+    dx, dy = obs["x"] - origin[:, 0], obs["y"] - origin[:, 1]
+    position = torch.stack([dx * c + dy * s + start[0], dy * c - dx * s + start[1]], -1)
+    theta = wrap_degrees(obs["theta"] + float(ROTATION[k]))
+    return torch.cat([position, theta[:, None], obs["theta_dot"][:, None]], dim=-1)
+
+
+@pytest.mark.parametrize("k", range(8))
+def test_direction_local_state_is_the_products_and_sums_bit_for_bit(k):
+    node = DirectionSubtask(k)
+    state = _states(5000, 20 + k)
+    origin = state[:, :2] + torch.randn(5000, 2) * 60
+    origin[:7] = state[:7, :2]  # d = 0 (and -0.0 after the sign change)
+    obs = {"x": state[:, 0], "y": state[:, 1], "theta": state[:, 2], "theta_dot": state[:, 3]}
+    assert torch.equal(node.features(obs, origin), _rotation_by_products(obs, origin, k))
+    local = _rotation_by_products(obs, origin, k)
+    kind = SUBTASK_OF_DIRECTION[k].expand(5000)
+    assert torch.equal(
+        node.terminated(obs, origin), local_success(local, kind) | local_failure(local)
+    )
+
+
+def test_direction_local_state_follows_changed_inputs():
+    frames = ShipFrames()
+    node, other = DirectionSubtask(2, frames), DirectionSubtask(7, frames)
+    state = _states(50, 3)
+    obs = {"x": state[:, 0], "y": state[:, 1], "theta": state[:, 2], "theta_dot": state[:, 3]}
+    memory = torch.zeros(50, 9, 2)
+    memory[:, 2] = state[:, :2] - 5.0
+    first = node.features(obs, memory[:, 2])
+    position = node.local_position(obs, memory[:, 2])
+    assert node.local_position(obs, memory[:, 2]) is position  # computed once per input
+    other.features(obs, memory[:, 7])  # the shared per-observation values stay valid
+    assert torch.equal(node.features(obs, memory[:, 2]), first)
+    assert node.local_position(obs, memory[:, 2]) is position
+    memory[:, 2] += 1.0  # in place: the local frame moves
+    assert torch.equal(
+        node.features(obs, memory[:, 2]), _rotation_by_products(obs, memory[:, 2], 2)
+    )
+    obs["theta"].add_(10.0)  # the observation changes in place
+    assert torch.equal(
+        node.features(obs, memory[:, 2]), _rotation_by_products(obs, memory[:, 2], 2)
+    )
+    moved = {**obs, "x": obs["x"] + 3.0}  # a new observation
+    assert torch.equal(
+        node.features(moved, memory[:, 2]), _rotation_by_products(moved, memory[:, 2], 2)
+    )
+
+
+def test_internal_reward_equals_its_two_where_form_bit_for_bit():
+    state = _states(20_000, 5)
+    local = torch.cat([state[:, :2] / 1000 * 170 - 10, state[:, 2:]], dim=1)
+    for goal in LOCAL_GOAL:  # some rows at the goal, on the box edge, both
+        local[:300, :2] = goal + torch.randn(300, 2) * 6
+    local[300:310, :2] = torch.tensor([150.0, 140.0])
+    for kind in (DIAGONAL, STRAIGHT):
+        subtask = torch.full((20_000,), kind)
+        success = local_success(local, subtask)
+        failure = local_failure(local) & ~success
+        terminal = torch.where(success, 100.0, 0.0) + torch.where(failure, -100.0, 0.0)
+        g = orientation_shaping(local, subtask)
+        error = wrap_degrees(local[:, 2] - bearing(local[:, :2], LOCAL_GOAL[subtask]))
+        assert torch.equal(g, torch.exp(-(error**2) / 30.0**2) - 1.0)
+        assert success.any() and failure.any()
+        assert torch.equal(internal_reward(local, subtask), g + terminal)
+        assert torch.equal(LOW_LEVEL_REWARDS[kind](local), g + terminal)
 
 
 def test_graph_of_figure_5_6():

@@ -43,6 +43,31 @@ def test_heading_wraps_and_turn_rate_stays_in_range():
     assert w[:3].tolist() == [-180.0, -180.0, -180.0]
 
 
+def _wrap_by_comparison(angle):
+    shifted = torch.remainder(angle + 180.0, 360.0)
+    shifted = torch.where(shifted >= 360.0, shifted - 360.0, shifted)  # float rounding
+    return shifted - 180.0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_wrap_degrees_equals_the_comparison_form_bit_for_bit(dtype):
+    # near the edges, where remainder(a + 180, 360) rounds to 360, and far away
+    edges = torch.tensor([-540.0, -180.0, 0.0, 180.0, 540.0], dtype=dtype)
+    near = [edges, edges]  # stepping down and up, one float at a time
+    for _ in range(40):
+        near += [torch.nextafter(near[-2], edges - 1), torch.nextafter(near[-1], edges + 1)]
+    g = torch.Generator().manual_seed(0)
+    spread = (torch.rand(100_000, generator=g, dtype=dtype) - 0.5) * 1e4
+    tiny = -torch.logspace(-45, 2, 2_000, dtype=torch.float64).to(dtype)
+    x = torch.cat([*near, spread, tiny, tiny - 180.0, torch.tensor([float("nan")], dtype=dtype)])
+    got, want = wrap_degrees(x), _wrap_by_comparison(x)
+    bits = torch.int32 if dtype == torch.float32 else torch.int64
+    assert torch.equal(got.isnan(), want.isnan())
+    ok = got.isnan()
+    assert torch.equal(got[~ok].view(bits), want[~ok].view(bits))
+    assert bool(((got[~ok] >= -180) & (got[~ok] < 180)).all())
+
+
 @pytest.mark.parametrize(
     ("start", "end", "crossed"),
     [
@@ -103,6 +128,16 @@ def test_invalid_action_raises(bad):
     env.reset()
     with pytest.raises(ValueError, match="turning rate"):
         env.step(torch.tensor([[0.0], [bad]]))
+
+
+def test_a_row_being_reset_may_send_any_action():
+    env = ShipSteeringEnv(seeds=[0], envs_per_learner=2, action_repeat=1)
+    env.reset_to(torch.tensor([[0.3, 500.0, -90.0, 0.0], [500.0, 500.0, 0.0, 0.0]]))
+    assert env.step(torch.zeros(2, 1))["terminated"].tolist() == [True, False]
+    td = env.step(torch.tensor([[float("nan")], [1.0]]))  # row 0 is reset, its action unused
+    assert td["is_init"].tolist() == [True, False]
+    assert bool(td["observation"].isfinite().all())
+    assert td["reward"][0] == 0 and td["duration"][0] == 0 and not td["terminated"][0]
 
 
 def test_wrong_action_shape_raises():
