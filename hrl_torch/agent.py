@@ -77,6 +77,8 @@ class HierarchicalAgent:
         evaluate: act with the evaluation policy (PG nodes on their modes, nothing recorded).
         transitions: return the SMDP transitions from ``step`` (default: ``learn``).
         rows: the learner of each row ``[B]`` instead of ``b // E`` (multi-agent rows).
+        uses: the optional transition keys to compute (``HierarchicalExecutor.OPTIONAL``;
+            default: the learner's ``uses``, or all when it has none).
 
     Attributes:
         clock: env steps per learner, the clock of the learner's schedules (exploration, step
@@ -96,6 +98,7 @@ class HierarchicalAgent:
         evaluate: bool = False,
         transitions: bool | None = None,
         rows: torch.Tensor | None = None,
+        uses: frozenset[str] | None = None,
     ) -> None:
         self.graph, self.learner = graph, learner
         self.learn = learn
@@ -109,6 +112,7 @@ class HierarchicalAgent:
             executor_config,
             learner=rows,
             score_width=0 if evaluate else getattr(learner, "score_width", 0),
+            uses=getattr(learner, "uses", None) if uses is None else uses,
         )
         self.rows = self.executor.learner
         self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}

@@ -138,7 +138,16 @@ class HierarchicalExecutor:
         config: guard and all-states options.
         learner: the learner of each row ``[B]`` instead of ``b // E`` (multi-agent rows).
         score_width: width ``K`` of the likelihood-ratio terms the policy returns (0: none).
+        uses: the optional transition keys the consumers read (``OPTIONAL``), ``None``: all.
+            The others are left out of the transitions, and the greedy flags are not kept
+            on the stacks unless ``"greedy"`` is in ``uses``.
     """
+
+    #: transition keys computed only when asked for (``uses``): ``batch[LEVEL]``'s
+    #: ``parent_inst``, ``next_state``, ``truncated``; ``"greedy"`` for the greedy flags
+    #: (``greedy``, ``own_greedy`` of both parts); ``"primitive"`` for ``batch[PRIMITIVE]``'s
+    #: fields other than ``reward`` and ``duration``
+    OPTIONAL = frozenset({"parent_inst", "next_state", "truncated", "greedy", "primitive"})
 
     def __init__(
         self,
@@ -149,7 +158,14 @@ class HierarchicalExecutor:
         config: ExecutorConfig | None = None,
         learner: torch.Tensor | None = None,
         score_width: int = 0,
+        uses: frozenset[str] | None = None,
     ) -> None:
+        unknown = set(uses or ()) - self.OPTIONAL
+        if unknown:
+            raise ValueError(
+                f"unknown transition keys {sorted(unknown)}; optional ones: {sorted(self.OPTIONAL)}"
+            )
+        self.uses = self.OPTIONAL if uses is None else frozenset(uses)
         self.graph = graph
         self.config = config or ExecutorConfig()
         self.gamma = float(gamma)
@@ -223,7 +239,7 @@ class HierarchicalExecutor:
         choose_all = getattr(policy, "choose_all", None)
         choice = choose_all(ctx, step) if choose_all is not None else None
         if choice is not None:
-            top1, own_greedy = self._descend(f, choice)
+            top1, own_greedy = self._descend(f, choice, "greedy" in self.uses)
         else:
             top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step)
         self._push(f, ctx, top1, own_greedy)
@@ -249,11 +265,11 @@ class HierarchicalExecutor:
             code = torch.where(self._acting, code, g.n_choosers + top1)
         return code
 
-    def _descend(self, f: dict, choice: Choice) -> tuple[torch.Tensor, torch.Tensor]:
+    def _descend(self, f: dict, choice: Choice, greedy: bool = True):
         """Follow the choices of every choosing instance ``[B, Ic]`` down to a primitive.
 
         Returns the instance on top + 1 ``[B]`` and each level's choice greedy flag on the
-        new stack ``[B, D]`` (True where nothing was chosen).
+        new stack ``[B, D]`` (True where nothing was chosen; ``None`` without ``greedy``).
         """
         g, ic = self.graph, self.graph.n_choosers
         nxt = torch.take(g.chooser_next_code, self._chooser_base + choice.child)
@@ -262,8 +278,10 @@ class HierarchicalExecutor:
         for _ in range(self.depth - 1):
             code = torch.take(nxt, self._code_base + code)  # (take reads nxt flat)
         top1 = code - ic
-        greedy = torch.nn.functional.pad(choice.greedy, (0, 1), value=True)
-        own = torch.take(greedy, self._greedy_base + g.path_chooser_1.index_select(0, top1))
+        if not greedy:
+            return top1, None
+        flags = torch.nn.functional.pad(choice.greedy, (0, 1), value=True)
+        own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))
         return top1, own
 
     def _descend_level_by_level(self, f, ctx, policy, step) -> tuple[torch.Tensor, torch.Tensor]:
@@ -336,8 +354,9 @@ class HierarchicalExecutor:
             if bool(stuck.any()):
                 _raise_stuck(g, stuck, node)
         f["child"] = torch.where(kept, f["child"], g.path_child_1.index_select(0, top1))
-        f["own_greedy"] = own = torch.where(kept, f["own_greedy"], own_greedy)
-        f["greedy"] = own.cummin(1).values  # the level's own choice and every ancestor's
+        if own_greedy is not None:
+            f["own_greedy"] = own = torch.where(kept, f["own_greedy"], own_greedy)
+            f["greedy"] = own.cummin(1).values  # the level's own choice and every ancestor's
         f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])
         for key in self._accumulators:
             f[key] = f[key].masked_fill(chose, 0)
@@ -517,9 +536,7 @@ class HierarchicalExecutor:
             "inst": f["inst"],
             "node": node,
             "child": f["child"],
-            "parent_inst": _shift_right(f["inst"], fill=-1),
             "state": f["start_state"],
-            "next_state": ctx.abstract.gather(1, node),
             "steps": f["steps"],
             "duration": f["time"],
             "reward": f["reward"],
@@ -528,11 +545,17 @@ class HierarchicalExecutor:
             "pseudo_reward": pseudo,
             "terminal": terminal,
             "child_done": child_done,
-            "truncated": env_trunc[:, None] & emit & ~terminal,
-            "greedy": f["greedy"],
-            "own_greedy": f["own_greedy"],
             "ran": ran,
         }
+        uses = self.uses
+        if "parent_inst" in uses:
+            level["parent_inst"] = _shift_right(f["inst"], fill=-1)
+        if "next_state" in uses:
+            level["next_state"] = ctx.abstract.gather(1, node)
+        if "truncated" in uses:
+            level["truncated"] = env_trunc[:, None] & emit & ~terminal
+        if "greedy" in uses:
+            level["greedy"], level["own_greedy"] = f["greedy"], f["own_greedy"]
         if ctx.features is not None:
             level["features"] = f["start_features"]
             level["next_features"] = ctx.features.gather(
@@ -563,21 +586,23 @@ class HierarchicalExecutor:
         """The fields of the primitive step each row just took (``batch[PRIMITIVE]``).
 
         ``ran [B, D]`` marks the level of the primitive (its ``state`` reads 0 where the step
-        teaches nothing).
+        teaches nothing). Only ``reward`` and ``duration`` unless ``"primitive"`` is used.
         """
+        out = {"reward": step["reward"], "duration": step["duration"]}
+        if "primitive" not in self.uses:
+            return out
         g, top = self.graph, f["top"]
         top1 = f["inst"].amax(1) + 1  # the instance on top, + 1
-        action = f["cont_action"] if g.action_dim else torch.take(g.inst_action_1, top1)
-        return {
-            "valid": real & (top >= 0),
-            "inst": top1 - 1,
-            "node": torch.take(g.inst_node_1, top1),
-            "state": (f["start_state"] * ran).sum(1),
-            "reward": step["reward"],
-            "duration": step["duration"],
-            "greedy": f["own_greedy"].all(1),  # the levels at and above the top hold True
-            "action": action,
-        }
+        out.update(
+            valid=real & (top >= 0),
+            inst=top1 - 1,
+            node=torch.take(g.inst_node_1, top1),
+            state=(f["start_state"] * ran).sum(1),
+            action=f["cont_action"] if g.action_dim else torch.take(g.inst_action_1, top1),
+        )
+        if "greedy" in self.uses:
+            out["greedy"] = f["own_greedy"].all(1)  # the levels at and above the top hold True
+        return out
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:

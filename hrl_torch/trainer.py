@@ -351,6 +351,9 @@ class Trainer:
         """
         exploration = self.exploration if exploration is None else exploration
         e = env.envs_per_learner
+        uses = getattr(self.learner, "uses", None)
+        if self.config.check_leaf_rewards and uses is not None:
+            options.setdefault("uses", uses | {"primitive"})  # the monitor reads the steps
         if self.n_agents is None:
             rng = BatchRNG(env.seeds, e, stream)
             args = (self.graph, self.learner, exploration, rng, e, self.executor_config)

@@ -100,6 +100,8 @@ class HARLearner(ThreePartLearner):
         gain_prior: ``(g_0, t_0)``, initial sums of the gain (see the module docstring).
     """
 
+    uses = frozenset({"parent_inst", "primitive", "greedy"})
+
     def __init__(
         self,
         graph: TaskGraph,
@@ -148,6 +150,8 @@ class RARLearner(TabularLearner):
         init: initial completion values ``C``.
         gain_prior: ``(g_0, t_0)``, initial sums of every subtask's gain.
     """
+
+    uses = frozenset({"greedy", "primitive"})
 
     def __init__(
         self,

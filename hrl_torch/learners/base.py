@@ -28,9 +28,15 @@ from hrl_torch.validate import check_fraction, check_step_size
 
 
 class Learner(nn.Module):
-    """Base class: a population of ``P`` independent learners over one task graph."""
+    """Base class: a population of ``P`` independent learners over one task graph.
+
+    ``uses``: the optional transition keys ``update`` reads
+    (``hrl_torch.executor.HierarchicalExecutor.OPTIONAL``); ``None`` (the default) asks for
+    all of them, a learner that declares fewer spares the executor their ops.
+    """
 
     gamma: float = 1.0
+    uses: frozenset[str] | None = None
 
     def __init__(self, graph: TaskGraph, n_learners: int) -> None:
         super().__init__()

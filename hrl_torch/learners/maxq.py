@@ -32,6 +32,8 @@ from hrl_torch.ops import discount, entries
 class MaxQLearner(TabularLearner):
     """MAXQ-Q for a population of ``P`` learners.
 
+    Reads no optional transition keys (``uses``).
+
     Args:
         graph: the task graph.
         n_learners: population size ``P``.
@@ -44,6 +46,8 @@ class MaxQLearner(TabularLearner):
         init_internal: initial internal completions ``C~`` (default: ``init``), e.g.
             pessimistic ones for subtasks whose internal rewards are step costs.
     """
+
+    uses = frozenset()
 
     def __init__(
         self,

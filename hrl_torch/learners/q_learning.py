@@ -33,6 +33,8 @@ class SMDPQLearner(TabularLearner):
         init: initial action values.
     """
 
+    uses = frozenset()
+
     def __init__(
         self, graph, n_learners, alpha=0.5, gamma=1.0, per_instance=False, init: float = 0.0
     ) -> None:

@@ -79,6 +79,8 @@ class ThreePartLearner(TabularLearner):
         ce_init: initial external completions ``CE`` (default: ``init``).
     """
 
+    uses = frozenset({"parent_inst"})
+
     def __init__(
         self,
         graph: TaskGraph,
