@@ -71,16 +71,17 @@ class _FlatStore(nn.Module):
 
     ``store`` holds ``P * stride`` entries (learner ``p``'s block first at ``p * stride``)
     followed by one *sentinel* entry that stays 0: reads and writes of masked rows are aimed
-    at it, so a masked read is a single ``index_select``.
+    at it, so a masked read is a single ``index_select``. ``pad`` more zeros may follow, so
+    that a whole row of width ``pad`` read from any table stays inside the store.
     """
 
     #: above this many entries, same-step updates are grouped with ``unique`` (no scratch)
     SCRATCH_LIMIT = 1 << 22
 
-    def _init_store(self, n_learners: int, stride: int, fill: torch.Tensor) -> None:
-        self.n_learners, self.stride = n_learners, stride
+    def _init_store(self, n_learners: int, stride: int, fill: torch.Tensor, pad: int = 0) -> None:
+        self.n_learners, self.stride, self.pad = n_learners, stride, pad
         self.sentinel = n_learners * stride
-        store = torch.cat([fill.repeat(n_learners), torch.zeros(1)])
+        store = torch.cat([fill.repeat(n_learners), torch.zeros(1 + pad)])
         self.register_buffer("store", store)
         self._scratch = torch.zeros(2, 0)
 
@@ -155,10 +156,16 @@ class TableBank(_FlatStore):
         n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
         n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
         init: initial value of every entry.
+        pad: zeros after the sentinel (``_FlatStore``).
     """
 
     def __init__(
-        self, n_learners: int, n_states: torch.Tensor, n_cols: torch.Tensor, init: float = 0.0
+        self,
+        n_learners: int,
+        n_states: torch.Tensor,
+        n_cols: torch.Tensor,
+        init: float = 0.0,
+        pad: int = 0,
     ) -> None:
         super().__init__()
         sizes = n_states.long() * n_cols.long()
@@ -170,7 +177,7 @@ class TableBank(_FlatStore):
         self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
         self._set: TableSet | None = None
         self.base = 0
-        self._init_store(n_learners, self.total, torch.full((self.total,), self.init))
+        self._init_store(n_learners, self.total, torch.full((self.total,), self.init), pad)
 
     def _join(self, tables: TableSet, base: int) -> None:
         """Keep this bank's entries in ``tables``' store, from ``base`` in each learner block."""
@@ -259,7 +266,8 @@ class TableSet(_FlatStore):
         super().__init__()
         first = next(iter(banks.values()))
         fills = [bank.store[: bank.total] for bank in banks.values()]  # one learner's block
-        self._init_store(first.n_learners, sum(b.total for b in banks.values()), torch.cat(fills))
+        stride, pad = sum(b.total for b in banks.values()), max(b.pad for b in banks.values())
+        self._init_store(first.n_learners, stride, torch.cat(fills), pad)
         self.banks = nn.ModuleDict(banks)
         start = 0
         for bank in banks.values():
@@ -328,6 +336,7 @@ class EvalPlan(nn.Module):
         self.register_buffer("chooser_pos", chooser_pos, persistent=False)
         self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._tabulated: dict[int, tuple] = {}
+        self._bases: dict[tuple[int, int], tuple] = {}
 
     @property
     def group_ids(self) -> list[torch.Tensor]:
@@ -358,20 +367,33 @@ class EvalPlan(nn.Module):
         return base[..., None] + self.cols
 
     def rows_at(self, ctx, bank: TableBank):
-        """``(available [B, Tc, A], dead [B, Tc], index [B, Tc, A])`` of the tables at ``ctx``.
+        """``(blocked [B, Tc, A], dead [B, Tc], index [B, Tc, A])`` of the tables at ``ctx``.
 
-        ``index`` holds the flat indices of the rows of ``bank``'s planned tables; entries of
-        children that are not available point anywhere in the store (read them only masked).
+        ``blocked``: the child is not available (padding slots are never available); ``index``
+        holds the flat indices of the rows of ``bank``'s planned tables (read with ``take``;
+        the entries of blocked children hold any finite value, read them only masked);
         ``dead``: the table's state is terminal for it, or no child is available.
         """
         per_state = self._per_state(bank) if ctx.table_row is not None else None
         if per_state is not None:
-            available, dead, index = (t.index_select(0, ctx.table_row) for t in per_state)
-            return available, dead, index + (ctx.learner * bank.stride)[:, None, None]
-        available = columns(ctx.available, self.node)  # padding slots are never available
-        dead = columns(ctx.blocked, self.node) | ~available.any(-1)
+            blocked, dead, index = (t.index_select(0, ctx.table_row) for t in per_state)
+            return blocked, dead, index + self.learner_base(ctx.learner, bank.stride, 3)
+        blocked = ~columns(ctx.available, self.node)
+        dead = columns(ctx.blocked, self.node) | blocked.all(-1)
         index = self.row_index(bank, ctx.learner, columns(ctx.abstract, self.node))
-        return available, dead, index
+        return blocked, dead, index
+
+    def learner_base(self, learner: torch.Tensor, stride: int, dims: int) -> torch.Tensor:
+        """``learner * stride`` shaped ``[B, 1, ...]`` (``dims`` dimensions).
+
+        Kept while the rows' learners are the same tensor (an executor's rows).
+        """
+        key = (stride, dims)
+        cached = self._bases.get(key)
+        if cached is None or cached[0] is not learner:
+            cached = (learner, (learner * stride).view(-1, *([1] * (dims - 1))))
+            self._bases[key] = cached
+        return cached[1]
 
     def _per_state(self, bank: TableBank):
         """``rows_at``'s fields for every state of the tabulated graph (learner 0), cached."""
@@ -380,11 +402,11 @@ class EvalPlan(nn.Module):
         if key not in self._tabulated:
             per_state = None
             if g.tab_abstract.shape[0] * self.child_table.numel() <= self.TABULATE_LIMIT:
-                available = g.tab_available[:, self.node]
-                dead = g.tab_blocked[:, self.node] | ~available.any(-1)
+                blocked = ~g.tab_available[:, self.node]
+                dead = g.tab_blocked[:, self.node] | blocked.all(-1)
                 offset, n_cols = self.offsets(bank)
                 index = (offset + g.tab_abstract[:, self.node] * n_cols)[..., None] + self.cols
-                per_state = (available, dead, index)
+                per_state = (blocked, dead, index)
             self._tabulated[key] = per_state
         return self._tabulated[key]
 
@@ -399,6 +421,7 @@ class EvalPlan(nn.Module):
                 offset, n_cols = bank.offset[self.prims], bank.n_cols[self.prims]
                 per_state = offset + state * n_cols
                 self._tabulated[key] = per_state
-            return per_state.index_select(0, ctx.table_row) + (ctx.learner * bank.stride)[:, None]
+            base = self.learner_base(ctx.learner, bank.stride, 2)
+            return per_state.index_select(0, ctx.table_row) + base
         state = columns(ctx.abstract, self.prim_node)
         return bank.index(ctx.learner[:, None], self.prims, state, 0)

@@ -179,12 +179,12 @@ class RARLearner(TabularLearner):
 
     def evaluate(self, ctx: StepContext) -> None:
         """Bottom-up ``H^(i, s) = max_a L^(i, s, a)`` (Eqs. 4.17-4.19) and the rows ``L^``."""
-        available, dead, (c,) = self.composite_rows(ctx, self.C)
+        blocked, dead, (c,) = self.composite_rows(ctx, self.C)
         value = self.primitive_values(ctx, self.V)
         q_rows = []
-        for ids, kids, blocked, gone, c_part in self.groups(~available, dead, c):
+        for ids, kids, unavailable, gone, c_part in self.groups(blocked, dead, c):
             q = value.index_select(1, kids).view(c_part.shape) + c_part
-            best = q.masked_fill(blocked, -torch.inf).amax(-1)
+            best = q.masked_fill(unavailable, -torch.inf).amax(-1)
             value.index_copy_(1, ids, best.masked_fill(gone, 0.0))
             q_rows.append(q)
         ctx.values["H"] = value

@@ -105,7 +105,8 @@ class TabularLearner(Learner):
         """A ``[n_states, n_children]`` table for every non-primitive table node."""
         lay = self.layout
         n_states = torch.where(lay.table_is_primitive, 0, lay.table_n_states)
-        return TableBank(self.n_learners, n_states, lay.table_n_children.clamp_min(1), init)
+        n_cols = lay.table_n_children.clamp_min(1)
+        return TableBank(self.n_learners, n_states, n_cols, init, pad=lay.max_children)
 
     def primitive_bank(self, init: float = 0.0) -> TableBank:
         """A ``[n_states, 1]`` value table for every primitive table node."""
@@ -115,27 +116,25 @@ class TabularLearner(Learner):
 
     # ------------------------------------------------------------------ evaluation
     def composite_rows(self, ctx: StepContext, *banks: TableBank):
-        """The planned tables' rows at ``ctx``: ``(available, dead, rows of each bank)``.
+        """The planned tables' rows at ``ctx``: ``(blocked, dead, rows of each bank)``.
 
-        ``available [B, Tc, A]``: children available (padding False); ``dead [B, Tc]``: the
+        ``blocked [B, Tc, A]``: children not available (padding True); ``dead [B, Tc]``: the
         table's state is terminal for it or nothing is available (its value is 0); each bank's
-        rows ``[B, Tc, A]`` (tables in ``self.plan`` order). The entries of children that are
-        not available hold any finite value: read them masked by ``available``. The banks
-        share one layout (completion banks of this learner).
+        rows ``[B, Tc, A]`` (tables in ``self.plan`` order). The entries of blocked children
+        hold any finite value: read them masked. The banks share one layout (completion banks
+        of this learner, padded by ``max_children``).
         """
-        available, dead, index = self.plan.rows_at(ctx, banks[0])
+        blocked, dead, index = self.plan.rows_at(ctx, banks[0])
         rows = []
         for bank in banks:
             at = index if bank.base == banks[0].base else index + (bank.base - banks[0].base)
-            flat = at.clamp_max(bank.sentinel).view(-1)  # a padding slot may run off the end
-            rows.append(bank.store.index_select(0, flat).view(index.shape))
-        return available, dead, rows
+            rows.append(torch.take(bank.store, at))
+        return blocked, dead, rows
 
     def primitive_values(self, ctx: StepContext, bank: TableBank) -> torch.Tensor:
         """``[B, T]``: ``bank``'s values of the primitive tables at ``ctx`` (0 elsewhere)."""
-        index = self.plan.prim_index_at(ctx, bank)
-        values = bank.store.index_select(0, index.view(-1)).view(index.shape)
-        value = torch.zeros(index.shape[0], self.layout.n_tables, device=index.device)
+        values = torch.take(bank.store, self.plan.prim_index_at(ctx, bank))
+        value = torch.zeros(values.shape[0], self.layout.n_tables, device=values.device)
         return value.index_copy_(1, self.plan.prims, values)
 
     def groups(self, *per_table: torch.Tensor):
@@ -189,17 +188,9 @@ class TabularLearner(Learner):
         slot is 0); ``share_store`` made the layout. ``learner [B]``, ``level`` the
         transitions' levels (``batch[LEVEL]``).
         """
-        base = self.learner_base(learner, self.tables.stride)
+        base = self.plan.learner_base(learner, self.tables.stride, 2)
         offset, n_cols = torch.take(self.entry_offset, table), torch.take(self.entry_cols, table)
         return base + offset + level["state"] * n_cols + level["child"]
-
-    def learner_base(self, learner: torch.Tensor, stride: int) -> torch.Tensor:
-        """``learner[:, None] * stride`` (kept while the rows' learners are the same tensor)."""
-        cached = self.__dict__.get("_base_cache")
-        if cached is None or cached[0] is not learner or cached[1] != stride:
-            cached = (learner, stride, learner[:, None] * stride)
-            self.__dict__["_base_cache"] = cached
-        return cached[2]
 
     def attach_heads(self, **banks: TableBank) -> None:
         """Heads (``self.heads``) naming every table node's block of each of ``banks``."""

@@ -73,7 +73,8 @@ class QLambdaLearner(TabularLearner):
         value_node[[graph.index[n] for n in names]] = True
         lay = self.layout
         n_states = torch.where(value_node[lay.table_node], lay.table_n_states, 0)
-        self.Q = TableBank(n_learners, n_states, lay.table_n_children.clamp_min(1), init)
+        n_cols = lay.table_n_children.clamp_min(1)
+        self.Q = TableBank(n_learners, n_states, n_cols, init, pad=lay.max_children)
         self.attach_heads(Q=self.Q)
         check_fraction(self, "lam", lam)
         self.lam = float(lam)
@@ -94,8 +95,8 @@ class QLambdaLearner(TabularLearner):
 
         Only the value nodes are planned (``self.plan``); the others are worth 0 here.
         """
-        available, dead, (q,) = self.composite_rows(ctx, self.Q)
-        best = torch.where(available, q, -torch.inf).amax(-1)
+        blocked, dead, (q,) = self.composite_rows(ctx, self.Q)
+        best = q.masked_fill(blocked, -torch.inf).amax(-1)
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
         ctx.values["V"] = value.index_copy_(1, self.plan.order, best.masked_fill(dead, 0.0))
         ctx.values["Q"] = q

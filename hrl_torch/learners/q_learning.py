@@ -44,8 +44,8 @@ class SMDPQLearner(TabularLearner):
 
     def evaluate(self, ctx: StepContext) -> None:
         """``Q(i, s, .)`` rows and ``V(i, s) = max_a Q(i, s, a)`` for every non-primitive table."""
-        available, dead, (q,) = self.composite_rows(ctx, self.Q)
-        best = torch.where(available, q, -torch.inf).amax(-1)
+        blocked, dead, (q,) = self.composite_rows(ctx, self.Q)
+        best = q.masked_fill(blocked, -torch.inf).amax(-1)
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
         ctx.values["V"] = value.index_copy_(1, self.plan.order, best.masked_fill(dead, 0.0))
         ctx.values["Q"] = q

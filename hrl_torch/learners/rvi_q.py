@@ -87,10 +87,10 @@ class RVIQLearner(TabularLearner):
 
     def evaluate(self, ctx: StepContext) -> None:
         """``Q(s, .)`` and ``max_a Q(s, a)`` at the root."""
-        available, _, (q,) = self.composite_rows(ctx, self.Q)
-        best = torch.where(available, q, -torch.inf).amax(-1)
+        blocked, _, (q,) = self.composite_rows(ctx, self.Q)
+        best = q.masked_fill(blocked, -torch.inf).amax(-1)
         value = torch.zeros(q.shape[0], self.layout.n_tables, device=q.device)
-        value.index_copy_(1, self.plan.order, torch.where(available.any(-1), best, 0.0))
+        value.index_copy_(1, self.plan.order, best.masked_fill(blocked.all(-1), 0.0))
         ctx.values["V"] = value
         ctx.values["Q"] = q
 

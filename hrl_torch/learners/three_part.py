@@ -128,15 +128,15 @@ class ThreePartLearner(TabularLearner):
         ``ctx.values``: ``V``, ``CE``, ``W`` ``[B, T]``; ``Q`` ``[B, Tc, A]`` (plan order), the
         rows ``V + C + CE`` the choices read.
         """
-        available, dead, (c, ce) = self.composite_rows(ctx, self.C, self.CE)
+        blocked, dead, (c, ce) = self.composite_rows(ctx, self.C, self.CE)
         value = self.primitive_values(ctx, self.V)
         ce_best = torch.zeros_like(value)
         full = torch.zeros_like(value)
         q_rows = []
-        for ids, kids, blocked, gone, c_part, ce_part in self.groups(~available, dead, c, ce):
+        for ids, kids, unavailable, gone, c_part, ce_part in self.groups(blocked, dead, c, ce):
             projected = value.index_select(1, kids).view(c_part.shape) + c_part  # Eq. 4.11
             q = projected + ce_part  # Eq. 4.7
-            best = q.masked_fill(blocked, -torch.inf).argmax(-1, keepdim=True)
+            best = q.masked_fill(unavailable, -torch.inf).argmax(-1, keepdim=True)
             for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
                 out.index_copy_(1, ids, rows.gather(-1, best).squeeze(-1).masked_fill(gone, 0.0))
             q_rows.append(q)
