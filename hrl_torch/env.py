@@ -125,8 +125,8 @@ class BatchedEnv:
             raise ValueError(
                 f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
             )
-        low, high = torch.aminmax(action)
-        if int(low) >= 0 and int(high) < self.n_actions:
+        low, high = torch.stack(torch.aminmax(action)).tolist()
+        if low >= 0 and high < self.n_actions:
             return action
         bad = (action < 0) | (action >= self.n_actions)
         if bool((bad & ~self.done).any()):

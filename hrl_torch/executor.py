@@ -182,6 +182,7 @@ class HierarchicalExecutor:
         self.levels = torch.arange(self.depth, **long)
         self.rows = torch.arange(batch_size, **long)
         self.score_width = score_width
+        self._guard_quiet = 0  # steps during which no invocation can reach the guard
         self.stack = TaskStack.empty(
             graph, batch_size, max(self.config.record_visited, 1), score_width
         )
@@ -215,6 +216,16 @@ class HierarchicalExecutor:
         self.invoked = torch.zeros_like(self.stack.inst, dtype=torch.bool)
 
     @property
+    def stack(self) -> TaskStack:
+        """The Task-Stacks of the rows (replaced, never written, by ``observe`` and ``act``)."""
+        return self._stack
+
+    @stack.setter
+    def stack(self, stack: TaskStack) -> None:
+        self._stack = stack
+        self._guard_quiet = 0  # stacks from elsewhere: check the guard at the next step
+
+    @property
     def memory(self) -> torch.Tensor:
         """What each node's running invocation remembered ``[B, n_nodes, M]`` (for contexts)."""
         return self.stack.memory
@@ -243,7 +254,7 @@ class HierarchicalExecutor:
         else:
             top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step)
         self._push(f, ctx, top1, own_greedy)
-        self.stack = TaskStack.from_tensors(f, self.batch_size)
+        self._stack = TaskStack.from_tensors(f, self.batch_size)
         self._acting = None
         if g.action_dim:
             self._action = torch.where((f["top"] >= 0)[:, None], f["cont_action"], 0.0)
@@ -259,10 +270,10 @@ class HierarchicalExecutor:
         reset and for an agent row that does not act (its primitive stays on top).
         """
         g = self.graph
-        top1 = f["inst"].amax(1) + 1  # ids grow along a path: the top is the largest
-        code = torch.take(g.inst_start_code_1, top1).masked_fill(f["done"], g.n_choosers)
+        top = f["inst"].amax(1)  # ids grow along a path: the top is the largest (-1: none)
+        code = torch.take(g.inst_start_code, top).masked_fill(f["done"], g.n_choosers)
         if self._acting is not None:
-            code = torch.where(self._acting, code, g.n_choosers + top1)
+            code = torch.where(self._acting, code, g.n_choosers + 1 + top)
         return code
 
     def _descend(self, f: dict, choice: Choice, greedy: bool = True):
@@ -351,7 +362,7 @@ class HierarchicalExecutor:
         f["top"] = torch.take(g.inst_depth_1, top1)
         if not g.never_stuck:
             stuck = chose & ~ctx.available.any(-1).gather(1, node)
-            if bool(stuck.any()):
+            if stuck.any().tolist():
                 _raise_stuck(g, stuck, node)
         f["child"] = torch.where(kept, f["child"], g.path_child_1.index_select(0, top1))
         if own_greedy is not None:
@@ -391,10 +402,8 @@ class HierarchicalExecutor:
         # is in the middle of its primitive action; its stack waits untouched
         self._acting = step.get("acting", None)
         step, bad = self._bad_steps(step, f)  # rows whose step is skipped, or None
-        is_init = step["is_init"]
+        is_init, term, trunc = step["is_init"], step["terminated"], step["truncated"]
         real = ~is_init
-        env_term = step["terminated"] & real
-        env_trunc = step["truncated"] & real & ~env_term
         stepped = real if self._acting is None else real & self._acting
         inst, node = f["inst"], f["node"]
         active = (inst >= 0) & stepped[:, None]
@@ -403,17 +412,17 @@ class HierarchicalExecutor:
 
         # which levels end: own termination (primitives always), episode end, guard
         own = ctx.terminated.gather(1, node) & active
-        env_ended = active & env_term[:, None]
+        env_ended = active & term[:, None]
         ended_own = own | is_prim | env_ended
-        cut = ended_own | (active & env_trunc[:, None])
+        cut = ended_own | (active & trunc[:, None])  # truncation cuts, not terminal
         timeout = self._timeouts(f, active, is_prim, node)
         if timeout is not None:
             cut = cut | timeout
         if bad is not None:  # a skipped step aborts the row's whole stack
             cut = cut | (active & bad[:, None])
         if self.interrupt is not None:  # e.g. the tau_any scheme (hrl_torch.multiagent)
-            cut = cut | (self.interrupt((cut.cumsum(1) > 0) & active, ended_own) & active)
-        popped = (cut.cumsum(1) > 0) & active  # a subtask that ends aborts what it called
+            cut = cut | (self.interrupt(cut.cummax(1).values & active, ended_own) & active)
+        popped = cut.cummax(1).values & active  # a subtask that ends aborts what it called
         chose = active & ~is_prim  # levels whose child ran this step
         child_ended = popped.roll(-1, 1)  # (the last level never chooses: no wrap-around)
         emit = chose & child_ended
@@ -426,17 +435,15 @@ class HierarchicalExecutor:
         batch = None
         if transitions:
             child_done = ended_own.roll(-1, 1) & emit
-            batch = self._transitions(
-                f, step, ctx, emit, child_done, terminal, env_trunc, taught, ran
-            )
+            batch = self._transitions(f, step, ctx, emit, child_done, terminal, trunc, taught, ran)
         if self.config.record_visited:
             self._record_visits(f, chose & ~child_ended, ctx, node)
 
         self.stats.count(node, self.invoked, popped, ended_own, f["inv_steps"])
         f["inst"] = inst.masked_fill(popped, -1)
         f["top"] = (f["top"] - popped.sum(1)).masked_fill(is_init, -1)
-        f["done"] = env_term | env_trunc
-        self.stack = TaskStack.from_tensors(f, self.batch_size)
+        f["done"] = (term | trunc) & real
+        self._stack = TaskStack.from_tensors(f, self.batch_size)
         return batch
 
     def _bad_steps(self, step: dict, f: dict):
@@ -448,9 +455,10 @@ class HierarchicalExecutor:
         step is bad.
         """
         reward, tau = step["reward"], step["duration"]
-        ok = (reward + tau) * 0 + tau >= 0  # False for inf/NaN in either and for d < 0
-        if bool(ok.all()):
+        check = (reward + tau) * 0 + tau  # NaN for inf/NaN in either, < 0 for d < 0
+        if check.numel() == 0 or check.amin().tolist() >= 0:  # (False for a NaN amin)
             return step, None
+        ok = check >= 0
         bad = ~ok & ~step["is_init"]
         row = int((~ok).nonzero()[0])
         if self.config.on_bad_step == "raise":
@@ -493,7 +501,14 @@ class HierarchicalExecutor:
         The guard spares the root: a continuing root never terminates by design.
         """
         cfg = self.config
-        if int(f["inv_steps"][:, 1:].amax()) < cfg.max_subtask_steps:  # (also stale levels)
+        # an invocation's steps grow by at most one per step: after seeing the longest at m,
+        # none can reach the guard for max - m - 1 steps (stale levels counted too)
+        if self._guard_quiet > 0:
+            self._guard_quiet -= 1
+            return None
+        longest = f["inv_steps"][:, 1:].amax().tolist() if self.depth > 1 else 0
+        if longest < cfg.max_subtask_steps:
+            self._guard_quiet = cfg.max_subtask_steps - longest - 1
             return None
         timeout = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
         if cfg.on_timeout == "raise" and bool(timeout.any()):
@@ -523,7 +538,7 @@ class HierarchicalExecutor:
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
-    def _transitions(self, f, step, ctx, emit, child_done, terminal, env_trunc, real, ran):
+    def _transitions(self, f, step, ctx, emit, child_done, terminal, trunc, real, ran):
         """The finished SMDP transitions of this step (see the module docstring)."""
         g, b, node = self.graph, self.batch_size, f["node"]
         if g.internal_nodes:
@@ -553,7 +568,7 @@ class HierarchicalExecutor:
         if "next_state" in uses:
             level["next_state"] = ctx.abstract.gather(1, node)
         if "truncated" in uses:
-            level["truncated"] = env_trunc[:, None] & emit & ~terminal
+            level["truncated"] = trunc[:, None] & emit & ~terminal  # (a termination: terminal)
         if "greedy" in uses:
             level["greedy"], level["own_greedy"] = f["greedy"], f["own_greedy"]
         if ctx.features is not None:
@@ -696,8 +711,9 @@ class ExecutorStats:
 
     def __init__(self, learner: torch.Tensor, n_learners: int, n_nodes: int) -> None:
         self.counts = torch.zeros(4, n_learners * n_nodes, device=learner.device)
-        self._base = learner[:, None] * n_nodes  # each row's learner block
         self.shape = (n_learners, n_nodes)
+        self._by_field = self.counts.view(4, n_learners, n_nodes)  # (a view: counts move)
+        self._at = (torch.arange(4, device=learner.device)[:, None, None], learner[:, None])
         for k, name in enumerate(self.FIELDS):
             setattr(self, name, self.counts[k].view(self.shape))
 
@@ -708,7 +724,7 @@ class ExecutorStats:
         last ``act`` started, ``popped`` the finished ones (``ended_own``: on their own).
         """
         values = torch.stack([invoked, popped, ended_own & popped, inv_steps * popped]).float()
-        self.counts.index_add_(1, (self._base + node).view(-1), values.view(4, -1))
+        self._by_field.index_put_((*self._at, node), values, accumulate=True)
 
     def reset(self) -> None:
         """Zero every counter (after logging)."""

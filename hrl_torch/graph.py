@@ -507,15 +507,17 @@ class TaskGraph(nn.Module):
         kids = self.inst_children[choosers]  # [Ic, A]
         kid_chooses = (kids >= 0) & ~self.inst_is_primitive[kids.clamp_min(0)]
         next_code = torch.where(kid_chooses, rank[kids.clamp_min(0)], ic + kids + 1)
+        # where a descent starts, by the instance on top; last (read at -1): an empty stack,
+        # which starts at the root (chooser 0)
         start_code = torch.cat(
             [
-                torch.zeros(1, dtype=torch.long),
                 torch.where(self.inst_is_primitive, ic + torch.arange(1, m + 1), rank),
+                torch.zeros(1, dtype=torch.long),
             ]
-        )  # an empty stack starts at the root (chooser 0)
+        )
         for name, value in (
             ("chooser_next_code", next_code.view(-1)),
-            ("inst_start_code_1", start_code),
+            ("inst_start_code", start_code),
             ("path_inst_1", inst),
             ("path_node_1", node),
             ("path_child_1", child),

@@ -91,16 +91,32 @@ class _FlatStore(nn.Module):
         target: torch.Tensor,
         alpha: torch.Tensor | float,
         mask: torch.Tensor,
+        distinct: bool = False,
     ) -> torch.Tensor:
         """Move entries toward their targets: ``W <- (1-a)^n W + (1-(1-a)^n) mean(target)``.
 
         Every entry hit by ``n`` rows in this batch takes the ``n`` same-step updates at once,
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
-        Shapes: ``flat_index``, ``target``, ``mask`` ``[R]``; ``alpha`` scalar or ``[R]``.
-        Returns each row's entry before the update ``[R]`` (0 for masked rows).
+        Shapes: ``flat_index``, ``target``, ``mask`` of one shape (each element a row);
+        ``alpha`` scalar or that shape. Returns each row's entry before the update (0 for
+        masked rows), in that shape.
+
+        ``distinct``: the caller knows that no two unmasked rows hit one entry (each row of
+        its batch belongs to another learner, and one row's entries differ), so ``n <= 1``
+        and the rule is the plain ``W <- W + a (target - W)``, the same numbers in fewer ops.
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
+        if distinct:
+            old = torch.take(flat, index)
+            mean = torch.nan_to_num(target)
+            new = mean + (1.0 - alpha) * (old - mean)  # (the n = 1 case below, op for op)
+            flat.index_put_((index,), torch.where(mask, new, old))
+            return old
+        shape = index.shape
+        index, target, mask = index.reshape(-1), target.reshape(-1), mask.reshape(-1)
+        if isinstance(alpha, torch.Tensor) and alpha.dim():
+            alpha = alpha.reshape(-1)
         weight = mask.to(flat.dtype)
         weighted = torch.stack([weight, torch.nan_to_num(target)]) * weight
         n, total = self._count_and_sum(index, weighted)
@@ -108,7 +124,7 @@ class _FlatStore(nn.Module):
         mean = total / n.clamp_min(1.0)
         old = flat.index_select(0, index)
         flat.index_put_((index,), mean + keep * (old - mean))
-        return old
+        return old.view(shape)
 
     def _count_and_sum(self, index, weighted) -> tuple[torch.Tensor, torch.Tensor]:
         """Per row: how many rows hit its entry, and the sum of their values (order-free).
@@ -204,11 +220,11 @@ class TableBank(_FlatStore):
     def save_store(self, value: bool) -> None:
         _FlatStore.save_store.fset(self._set if self._set is not None else self, value)
 
-    def update(self, flat_index, target, alpha, mask) -> torch.Tensor:
+    def update(self, flat_index, target, alpha, mask, distinct: bool = False) -> torch.Tensor:
         """``_FlatStore.update`` on this bank's store (the set's, when shared)."""
         if self._set is not None:
-            return self._set.update(flat_index, target, alpha, mask)
-        return super().update(flat_index, target, alpha, mask)
+            return self._set.update(flat_index, target, alpha, mask, distinct)
+        return super().update(flat_index, target, alpha, mask, distinct)
 
     @property
     def data(self) -> torch.Tensor:
@@ -337,6 +353,8 @@ class EvalPlan(nn.Module):
         self._offsets: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._tabulated: dict[int, tuple] = {}
         self._bases: dict[tuple[int, int], tuple] = {}
+        self._child_index: dict[int, list[torch.Tensor]] = {}
+        self.n_tables = layout.n_tables
 
     @property
     def group_ids(self) -> list[torch.Tensor]:
@@ -382,6 +400,18 @@ class EvalPlan(nn.Module):
         dead = columns(ctx.blocked, self.node) | blocked.all(-1)
         index = self.row_index(bank, ctx.learner, columns(ctx.abstract, self.node))
         return blocked, dead, index
+
+    def child_index(self, batch: int) -> list[torch.Tensor]:
+        """Per height group, where its tables' children are in a ``[B, T]`` value tensor.
+
+        ``[B, G, A]`` flat indices for ``take`` (padding slots read child 0), kept per ``B``.
+        """
+        cached = self._child_index.get(batch)
+        if cached is None or cached[0].device != self.order.device:
+            rows = torch.arange(batch, device=self.order.device)[:, None, None] * self.n_tables
+            cached = [rows + kids.view(-1, self.cols.shape[0]) for kids in self.group_children]
+            self._child_index[batch] = cached
+        return cached
 
     def learner_base(self, learner: torch.Tensor, stride: int, dims: int) -> torch.Tensor:
         """``learner * stride`` shaped ``[B, 1, ...]`` (``dims`` dimensions).

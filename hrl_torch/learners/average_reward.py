@@ -183,7 +183,7 @@ class RARLearner(TabularLearner):
         value = self.primitive_values(ctx, self.V)
         q_rows = []
         for ids, kids, unavailable, gone, c_part in self.groups(blocked, dead, c):
-            q = value.index_select(1, kids).view(c_part.shape) + c_part
+            q = torch.take(value, kids) + c_part
             best = q.masked_fill(unavailable, -torch.inf).amax(-1)
             value.index_copy_(1, ids, best.masked_fill(gone, 0.0))
             q_rows.append(q)

@@ -61,11 +61,22 @@ class Learner(nn.Module):
     def record_td(
         self, learner: torch.Tensor, node: torch.Tensor, error: torch.Tensor, mask: torch.Tensor
     ) -> None:
-        """Accumulate ``|error|`` per (learner, node) where ``mask`` (all shapes equal)."""
-        idx = (learner * self.graph.n_nodes + node).reshape(-1)
-        m = mask.reshape(-1).float()
-        self.td_abs.view(-1).index_add_(0, idx, error.abs().reshape(-1).nan_to_num() * m)
-        self.td_count.view(-1).index_add_(0, idx, m)
+        """Accumulate ``|error|`` per (learner, node) where ``mask`` (shapes broadcast)."""
+        m = mask.float()
+        at = (learner, node)
+        self.td_abs.index_put_(at, error.abs().nan_to_num() * m, accumulate=True)
+        self.td_count.index_put_(at, m, accumulate=True)
+
+    def rows_distinct(self, learner: torch.Tensor) -> bool:
+        """Whether every row of a batch belongs to another learner (``learner [B]``).
+
+        Then no two rows reach one table entry. Kept while the rows are the same tensor.
+        """
+        cached = self.__dict__.get("_distinct")
+        if cached is None or cached[0] is not learner:
+            cached = (learner, learner.unique().numel() == learner.numel())
+            self.__dict__["_distinct"] = cached
+        return cached[1]
 
 
 class TabularLearner(Learner):
@@ -138,13 +149,15 @@ class TabularLearner(Learner):
         return value.index_copy_(1, self.plan.prims, values)
 
     def groups(self, *per_table: torch.Tensor):
-        """Per height group, bottom-up: ``(table ids [G], children's ids [G * A], parts...)``.
+        """Per height group, bottom-up: ``(table ids [G], children [B, G, A], parts...)``.
 
-        ``per_table``: tensors ``[B, Tc, ...]`` in plan order, split into the groups' parts.
+        ``per_table``: tensors ``[B, Tc, ...]`` in plan order, split into the groups' parts;
+        ``children``: where each child's value is in a ``[B, T]`` value tensor (``take``).
         """
         plan = self.plan
         parts = [x.split(plan.sizes, 1) for x in per_table]
-        yield from zip(plan.group_ids, plan.group_children, *parts, strict=True)
+        kids = plan.child_index(per_table[0].shape[0])
+        yield from zip(plan.group_ids, kids, *parts, strict=True)
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``."""

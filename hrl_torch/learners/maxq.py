@@ -89,7 +89,7 @@ class MaxQLearner(TabularLearner):
         value_int = value.clone() if self.internal else value
         q_rows = []
         for ids, kids, unavailable, gone, c, *c_int in self.groups(blocked, dead, *rows):
-            child_v = value.index_select(1, kids).view(c.shape)
+            child_v = torch.take(value, kids)
             q_ext = child_v + c
             if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
                 q_int = child_v + c_int[0]
@@ -146,11 +146,12 @@ class MaxQLearner(TabularLearner):
             index = torch.cat([index, index + (self.C_int.base - self.C.base)], 1)
             target = torch.cat([target, target_int], 1)
             mask = torch.cat([mask, valid], 1)
-        old = self.tables.update(index.view(-1), target.view(-1), alpha, mask.view(-1))
+        distinct = self.rows_distinct(fields["learner"])
+        old = self.tables.update(index, target, alpha, mask, distinct)
         if self.internal:
-            old = old.view(index.shape)[:, valid.shape[1] :]
-        learner = fields["learner"][:, None]
-        self.record_td(learner, level["node"], target_int - old.view(valid.shape), valid)
+            old = old[:, valid.shape[1] :]
+        learner = self.plan.learner_base(fields["learner"], 1, 2)  # [B, 1]
+        self.record_td(learner, level["node"], target_int - old, valid)
         if self.all_states and "visited_state" in level.keys():
             self._update_visited(batch, table, terminal, valid, v_next, v_next_int, alpha)
 

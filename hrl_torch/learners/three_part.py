@@ -134,7 +134,7 @@ class ThreePartLearner(TabularLearner):
         full = torch.zeros_like(value)
         q_rows = []
         for ids, kids, unavailable, gone, c_part, ce_part in self.groups(blocked, dead, c, ce):
-            projected = value.index_select(1, kids).view(c_part.shape) + c_part  # Eq. 4.11
+            projected = torch.take(value, kids) + c_part  # Eq. 4.11
             q = projected + ce_part  # Eq. 4.7
             best = q.masked_fill(unavailable, -torch.inf).argmax(-1, keepdim=True)
             for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
@@ -171,13 +171,14 @@ class ThreePartLearner(TabularLearner):
         index = self.entry_index(fields["learner"], level, table)
         c_or_v = torch.where(ran, self.primitive_target(batch)[:, None], c_target)  # line 5
         old = self.tables.update(  # lines 17 and 19 / 21, and line 5
-            torch.cat([index, index + (self.CE.base - self.C.base)], 1).view(-1),
-            torch.cat([c_or_v, ce_target], 1).view(-1),
+            torch.cat([index, index + (self.CE.base - self.C.base)], 1),
+            torch.cat([c_or_v, ce_target], 1),
             alpha,
-            torch.cat([valid | ran, valid], 1).view(-1),
+            torch.cat([valid | ran, valid], 1),
+            self.rows_distinct(fields["learner"]),
         )
-        old_c = old.view(index.shape[0], -1)[:, : index.shape[1]]
-        self.record_td(batch["learner"][:, None], level["node"], c_target - old_c, valid)
+        learner = self.plan.learner_base(fields["learner"], 1, 2)  # [B, 1]
+        self.record_td(learner, level["node"], c_target - old[:, : index.shape[1]], valid)
         if self.all_states and "visited_state" in level.keys():
             # line 16: every x in ChildSeq, with the time left after it
             learner = batch["learner"][:, None]
