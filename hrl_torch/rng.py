@@ -81,16 +81,21 @@ class BatchRNG:
         """Number of rows ``B``."""
         return self._row_key.shape[0]
 
-    def _bits(self, extra: int, first: int, k: int = 1) -> torch.Tensor:
-        """32-bit integers ``[k, B]`` or ``[k, B, extra]``: draws ``first .. first + k - 1``."""
+    def _bits(self, extra: int, first: int, k: int = 1, cols=None) -> torch.Tensor:
+        """32-bit integers ``[k, B]`` or ``[k, B, C]``: draws ``first .. first + k - 1``.
+
+        ``C`` columns: ``cols`` (a list of column numbers of a draw of width ``extra``; a
+        column's numbers do not depend on the width), else all ``extra``.
+        """
         bases = [_mix32_int(c * 0x9E3779B1 + 0x7F4A7C15) for c in range(first, first + k)]
         if extra == 0:
             keys = torch.tensor(bases, dtype=torch.int64, device=self.device)
             return mix32(self._row_key[None, :] ^ keys[:, None])
         # the column keys are a handful of numbers: hashed in Python, one tensor
-        cols = [[_mix32_int(j + base) for j in range(extra)] for base in bases]
-        cols = torch.tensor(cols, dtype=torch.int64, device=self.device)
-        return mix32(self._row_key[None, :, None] ^ cols[:, None, :])
+        cols = range(extra) if cols is None else cols
+        keys = [[_mix32_int(j + base) for j in cols] for base in bases]
+        keys = torch.tensor(keys, dtype=torch.int64, device=self.device)
+        return mix32(self._row_key[None, :, None] ^ keys[:, None, :])
 
     def uniform(
         self, extra: int = 0, counter: int | None = None, columns: torch.Tensor | None = None
@@ -98,34 +103,41 @@ class BatchRNG:
         """Float32 uniforms in ``[0, 1)``, shape ``[B]`` (or ``[B, extra]`` when ``extra > 0``).
 
         ``counter`` reads a given draw number instead of the next one (see ``reserve``);
-        ``columns`` (a fixed index tensor ``[C]``) keeps only those columns of the draw:
-        ``[B, C]``, what ``uniform(extra)[:, columns]`` gives.
+        ``columns`` (a fixed index tensor of any shape) gives ``uniform(extra)[:, columns]``
+        ``[B, *columns.shape]``, computing only those columns.
         """
         if columns is None:
-            return self._draw(extra, extra, counter, None)
-        return self._draw(
-            (extra, id(columns)), extra, counter, lambda u: u.index_select(-1, columns), columns
-        )
+            return self._draw(extra, extra, counter)
+        return self._draw((extra, id(columns)), extra, counter, columns)
 
-    def _draw(self, key, extra: int, counter: int | None, transform, keep=None) -> torch.Tensor:
-        """Draw ``counter`` (the next one if ``None``) of width ``extra``, ``transform``-ed.
+    def _draw(self, key, extra: int, counter: int | None, columns=None, transform=None):
+        """Draw ``counter`` (the next one if ``None``) of width ``extra`` (or its ``columns``).
 
-        The next draws of one kind are computed ahead in blocks (up to ``AHEAD``, at most
-        about ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number alone,
-        so a block holds exactly what the draws one by one would, made by one set of ops.
-        ``keep``: an object the block's key refers to (held with the block).
+        The next draws of one kind (``key``) are computed ahead in blocks (up to ``AHEAD``,
+        at most about ``AHEAD_ELEMENTS`` numbers at once): a draw is a function of its number
+        alone, so a block holds exactly what the draws one by one would, made by one set of
+        ops. ``transform`` maps a block of uniforms to what is kept (e.g. integers).
         """
         if counter is None:
             counter = self.counter
             self.counter += 1
         block = self._ahead.get(key)
         if block is None or not block[0] <= counter < block[0] + block[1].shape[0]:
-            per_draw = self.batch_size * max(extra, 1)
-            k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
-            u = (self._bits(extra, counter, k) >> 8).to(torch.float32) * (1.0 / 16777216.0)
-            block = (counter, u if transform is None else transform(u), keep)
-            self._ahead[key] = block
+            u = self._block(extra, counter, columns)
+            block = (counter, u if transform is None else transform(u), columns)
+            self._ahead[key] = block  # (the key's columns are held with the block)
         return block[1][counter - block[0]]
+
+    def _block(self, extra: int, first: int, columns=None) -> torch.Tensor:
+        """Uniforms of the draws from ``first`` on: ``[k, B, ...]`` (``uniform``'s shapes)."""
+        needed = None if columns is None else sorted(set(columns.reshape(-1).tolist()))
+        per_draw = self.batch_size * max(extra if needed is None else len(needed), 1)
+        k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
+        u = (self._bits(extra, first, k, needed) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+        if needed is None:
+            return u
+        where = torch.tensor([needed.index(c) for c in columns.reshape(-1).tolist()])
+        return u.index_select(-1, where.to(u.device)).view(*u.shape[:2], *columns.shape)
 
     def reserve(self, n: int) -> int:
         """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
@@ -142,7 +154,10 @@ class BatchRNG:
                 high = high[:, None]
             return torch.minimum((u * high).long(), high - 1)
         return self._draw(
-            ("int", extra, high), extra, None, lambda u: (u * high).long().clamp_max(high - 1)
+            ("int", extra, high),
+            extra,
+            None,
+            transform=lambda u: (u * high).long().clamp_max(high - 1),
         )
 
     def normal(self, extra: int = 0) -> torch.Tensor:

@@ -59,3 +59,15 @@ def test_draws_computed_ahead_in_blocks_equal_draws_one_at_a_time():
     rows = torch.tensor([5, 0])
     one.load_state_dict(ahead.state_dict())
     assert torch.equal(one.uniform(2)[rows], ahead.subset(rows).uniform(2))
+
+
+def test_a_draws_columns_are_the_columns_of_the_whole_draw():
+    # uniform(columns=...) computes only the columns asked for; a column's numbers do not
+    # depend on how many others are drawn
+    whole, part = BatchRNG([2, 3], 4, "c"), BatchRNG([2, 3], 4, "c")
+    cols = torch.tensor([[5, 1, 1], [0, 5, 6]])
+    for _ in range(9):
+        expect = whole.uniform(7)
+        got = part.uniform(7, columns=cols)
+        assert got.shape == (8, 2, 3)
+        assert torch.equal(got, expect[:, cols])
