@@ -48,7 +48,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import discount, entries
+from hrl_torch.ops import add_at, discount, entries
 from hrl_torch.stack import TaskStack
 
 #: key of the per-level transitions ``[B, D]`` in a transition batch
@@ -724,7 +724,7 @@ class ExecutorStats:
         last ``act`` started, ``popped`` the finished ones (``ended_own``: on their own).
         """
         values = torch.stack([invoked, popped, ended_own & popped, inv_steps * popped]).float()
-        self._by_field.index_put_((*self._at, node), values, accumulate=True)
+        add_at(self._by_field, (*self._at, node), values)
 
     def reset(self) -> None:
         """Zero every counter (after logging)."""

@@ -63,3 +63,25 @@ def put(td: TensorDict, key: str, value) -> None:
         td._tensordict[key] = value
     else:
         td.set(key, value)
+
+
+#: ``add_at`` switches to a flat ``index_add_`` from this many values on (on the CPU)
+ADD_AT_FLAT = 4096
+
+
+def add_at(table: torch.Tensor, index: tuple[torch.Tensor, ...], values: torch.Tensor) -> None:
+    """``table[index] += values`` with repeated indices summed, in place.
+
+    ``index`` holds one index tensor per dimension of ``table`` (broadcast with ``values``).
+    One ``index_put_(accumulate=True)`` for small batches (fewest ops); from
+    ``ADD_AT_FLAT`` values on, on the CPU, one flat ``index_add_`` (``index_put_``'s
+    accumulation is several times slower per element there).
+    """
+    if values.numel() < ADD_AT_FLAT or table.device.type != "cpu":
+        table.index_put_(index, values, accumulate=True)
+        return
+    flat = index[-1]
+    for k in range(len(index) - 1):
+        flat = flat + index[k] * table.stride(k)
+    flat, values = torch.broadcast_tensors(flat, values)
+    table.view(-1).index_add_(0, flat.reshape(-1), values.reshape(-1))

@@ -21,7 +21,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
-from hrl_torch.ops import at_rows, lookup
+from hrl_torch.ops import add_at, at_rows, lookup
 from hrl_torch.rng import BatchRNG
 from hrl_torch.tables import EvalPlan, TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
@@ -63,9 +63,8 @@ class Learner(nn.Module):
     ) -> None:
         """Accumulate ``|error|`` per (learner, node) where ``mask`` (shapes broadcast)."""
         m = mask.float()
-        at = (learner, node)
-        self.td_abs.index_put_(at, error.abs().nan_to_num() * m, accumulate=True)
-        self.td_count.index_put_(at, m, accumulate=True)
+        add_at(self.td_abs, (learner, node), error.abs().nan_to_num() * m)
+        add_at(self.td_count, (learner, node), m)
 
     def rows_distinct(self, learner: torch.Tensor) -> bool:
         """Whether every row of a batch belongs to another learner (``learner [B]``).
