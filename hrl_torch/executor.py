@@ -41,7 +41,7 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 import torch
@@ -204,6 +204,11 @@ class HierarchicalExecutor:
             self._accumulators.append("internal")
         self._no_reward = torch.zeros(batch_size, self.depth, device=device)
         self._spans, self._span_code_1 = _level_spans(self.depth, graph.inst_depth_1)
+        # the deepest level where a node with memory and features runs (-1: none)
+        memory_inst = torch.isin(
+            graph.inst_node, torch.tensor(graph.memory_feature_nodes, device=device)
+        )
+        self._memory_depth = int(graph.inst_depth[memory_inst].max()) if memory_inst.any() else -1
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self._acting: torch.Tensor | None = None  # agent rows acting at this step (observe)
@@ -247,13 +252,22 @@ class HierarchicalExecutor:
         """
         g, f = self.graph, self.stack.tensors()
         policy.new_step()
+        # a node that remembers where it started sees its features relative to that start:
+        # a new invocation's come from what it remembers now, not from the previous one's
+        new_features = None
+        if self._memory_depth >= 0 and ctx.features is not None:
+            # computed for the rows whose stack ends above a level where such a node can start
+            rows = (f["top"] < self._memory_depth).nonzero().squeeze(1)
+            if rows.numel():
+                started = g.start_features(ctx.obs[rows], ctx.features.index_select(0, rows))
+                new_features = ctx.features.index_copy(0, rows, started)
         choose_all = getattr(policy, "choose_all", None)
         choice = choose_all(ctx, step) if choose_all is not None else None
         if choice is not None:
             top1, own_greedy = self._descend(f, choice, "greedy" in self.uses)
         else:
-            top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step)
-        self._push(f, ctx, top1, own_greedy)
+            top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step, new_features)
+        self._push(f, ctx, top1, own_greedy, new_features)
         self._stack = TaskStack.from_tensors(f, self.batch_size)
         self._acting = None
         if g.action_dim:
@@ -295,48 +309,70 @@ class HierarchicalExecutor:
         own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))
         return top1, own
 
-    def _descend_level_by_level(self, f, ctx, policy, step) -> tuple[torch.Tensor, torch.Tensor]:
+    def _descend_level_by_level(self, f, ctx, policy, step, new_features=None):
         """``_descend`` with the policy's ``select`` asked once per level (any policy).
 
         The choice of the instance at depth ``d`` reads the row's random numbers of level
         ``d`` (``push=d``); a policy's scores and continuous actions are kept on the stack.
+        ``new_features``: the features ``[B, N, F]`` of new invocations
+        (``graph.start_features``), which the rows whose instance at ``d`` was pushed in this
+        act choose from.
         """
         g = self.graph
         ic = g.n_choosers
         code = self._start_code(f)  # back to instances + 1 (0: none)
         col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
-        flags = []
+        flags, scores = [], []
         for level in range(self.depth - 1):
             node = torch.take(g.inst_node_1, col)
             at_level = torch.take(g.inst_depth_1, col) == level
             chooses = torch.take(g.inst_composite_1, col) & at_level
             available = self._available_flat(ctx).index_select(0, self._row_base + node)
-            choice = _as_choice(policy.select((col - 1).clamp_min(0), ctx, available, step, level))
+            seen = ctx
+            if new_features is not None:  # rows whose instance at this level started now
+                started = (level > f["top"])[:, None, None]
+                seen = replace(ctx, features=torch.where(started, new_features, ctx.features))
+            choice = _as_choice(policy.select((col - 1).clamp_min(0), seen, available, step, level))
             child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
             if choice.score_index is not None:
-                self._record_score(f, level, chooses, choice)
+                scores.append((level, chooses, choice))
             if g.action_dim:
                 self._record_action(f, chooses & ~torch.take(g.inst_composite_1, child), choice)
             col = torch.where(chooses, child, col)
             flags.append(choice.greedy | ~chooses)
         flags.append(torch.ones_like(col, dtype=torch.bool))
         own = torch.stack(flags, 1)
+        if scores:
+            self._record_scores(f, scores)
         return col, own
 
     def _available_flat(self, ctx: StepContext) -> torch.Tensor:
         """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
         return ctx.available.view(-1, self.graph.max_children)
 
-    def _record_score(self, f: dict, level: int, need: torch.Tensor, choice: Choice) -> None:
-        """Keep the choice's likelihood-ratio term at the choosing ``level``."""
-        if choice.score_index.shape[1] != self.score_width:
-            raise ValueError(
-                f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
-                f"the executor keeps score_width={self.score_width}"
-            )
-        at = (self.levels == level)[None, :, None] & need[:, None, None]
-        f["score_index"] = torch.where(at, choice.score_index[:, None, :], f["score_index"])
-        f["score_value"] = torch.where(at, choice.score_value[:, None, :], f["score_value"])
+    def _record_scores(self, f: dict, scores: list) -> None:
+        """Keep each choice's likelihood-ratio term at its level, where the level chose.
+
+        ``scores``: ``(level, chose [B], choice)`` of the levels whose choices carry terms;
+        one write for all levels.
+        """
+        for _, _, choice in scores:
+            if choice.score_index.shape[1] != self.score_width:
+                raise ValueError(
+                    f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
+                    f"the executor keeps score_width={self.score_width}"
+                )
+        old_index, old_value = f["score_index"], f["score_value"]
+        by_level = {level: (chose, choice) for level, chose, choice in scores}
+        none = torch.zeros_like(old_index[:, 0, 0], dtype=torch.bool)
+        chose = torch.stack(
+            [by_level[k][0] if k in by_level else none for k in range(self.depth)], 1
+        )
+        new = [by_level.get(k, (None, None))[1] for k in range(self.depth)]
+        index = torch.stack([c.score_index if c else old_index[:, k] for k, c in enumerate(new)], 1)
+        value = torch.stack([c.score_value if c else old_value[:, k] for k, c in enumerate(new)], 1)
+        f["score_index"] = torch.where(chose[..., None], index, old_index)
+        f["score_value"] = torch.where(chose[..., None], value, old_value)
 
     @staticmethod
     def _record_action(f: dict, pushed: torch.Tensor, choice: Choice) -> None:
@@ -345,7 +381,7 @@ class HierarchicalExecutor:
             raise GraphError("a continuous primitive was chosen without an action value")
         f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
 
-    def _push(self, f: dict, ctx: StepContext, top1: torch.Tensor, own_greedy) -> None:
+    def _push(self, f: dict, ctx: StepContext, top1, own_greedy, new_features=None) -> None:
         """The stacks of the instances ``top1 - 1`` on top, with their fresh levels set.
 
         Levels from the old top to the new one are fresh: the ones below the new top chose a
@@ -375,7 +411,10 @@ class HierarchicalExecutor:
             f["disc_reward"] = f["reward"]
         f["inv_steps"] = f["inv_steps"].masked_fill(invoked, 0)
         if ctx.features is not None:
-            feats = ctx.features.gather(1, node[..., None].expand(-1, -1, ctx.features.shape[2]))
+            at = node[..., None].expand(-1, -1, ctx.features.shape[2])
+            feats = ctx.features.gather(1, at)
+            if new_features is not None:  # a new invocation starts from what it remembers now
+                feats = torch.where(invoked[..., None], new_features.gather(1, at), feats)
             f["start_features"] = torch.where(chose[..., None], feats, f["start_features"])
         if self.config.record_visited:
             first_visit = chose[..., None] & (self._visit_slots == 0)

@@ -412,6 +412,7 @@ class TaskGraph(nn.Module):
             torch.arange(width)[None, :] < self.node_n_children[:, None],
             persistent=False,
         )
+        self.register_buffer("node_children_0", children.clamp_min(0), persistent=False)
 
     def _compile_instances(self, max_instances: int) -> None:
         """``inst_*`` buffers: the DAG unrolled into instances (paths from the root)."""
@@ -554,6 +555,7 @@ class TaskGraph(nn.Module):
         self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
         self.max_features = max((x.n_features for x in self.nodes), default=0)
         self.memory_nodes = [k for k, x in enumerate(self.nodes) if x.memory_size]
+        self.memory_feature_nodes = [k for k in self.memory_nodes if self.nodes[k].n_features]
         self.max_memory = max((x.memory_size for x in self.nodes), default=0)
 
     def _custom(self, pred) -> tuple[list[int], list[int], torch.Tensor]:
@@ -673,7 +675,7 @@ class TaskGraph(nn.Module):
         )
         blocked = terminated & ~self.node_event
         child_ok = initiable & ~blocked  # a child that would end at once is not available
-        available = columns(child_ok, self.node_children.clamp_min(0)) & self.child_valid
+        available = columns(child_ok, self.node_children_0) & self.child_valid
         for k, x in enumerate(self.nodes):
             if x.is_primitive:
                 continue
@@ -720,6 +722,21 @@ class TaskGraph(nn.Module):
         out = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         for k in self.memory_nodes:
             out[:, k, : self.nodes[k].memory_size] = self.nodes[k].remember(obs)
+        return out
+
+    def start_features(self, obs: TensorDict, features: torch.Tensor) -> torch.Tensor:
+        """``features [B, N, F]`` with every memory node's as a new invocation would see them.
+
+        A node with invocation memory reads its features relative to what it remembered when
+        it started; an invocation starting at ``obs`` remembers ``remember(obs)``.
+        """
+        if not self.memory_feature_nodes:
+            return features
+        memory = self.remember_all(obs)
+        out = features.clone()
+        for k in self.memory_feature_nodes:
+            node = self.nodes[k]
+            out[:, k, : node.n_features] = node.features(obs, memory[:, k, : node.memory_size])
         return out
 
     def internal_rewards_at_termination(

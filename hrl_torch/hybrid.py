@@ -29,6 +29,7 @@ from hrl_torch.exploration import Exploration, Greedy, uniform_choice
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg import HPGRLLearner
+from hrl_torch.rng import choosing_levels
 
 
 class TriggeredEpsilon(nn.Module):
@@ -218,12 +219,13 @@ class HybridPolicy:
         self.greedy = evaluate
         self.rng = rng
         self.width = learner.graph.max_children + 4
+        self._columns = choosing_levels(learner.graph, self.width)
         self._u = None
 
     def new_step(self) -> None:
-        """Draw this step's uniforms ``[B, levels, A + 4]``."""
-        levels = self.learner.graph.max_levels
-        self._u = self.rng.uniform(levels * self.width).view(-1, levels, self.width)
+        """Draw this step's uniforms ``[B, levels - 1, A + 4]`` (the levels that can choose)."""
+        width = self.learner.graph.max_levels * self.width
+        self._u = self.rng.uniform(width, columns=self._columns)
 
     def select(self, inst, ctx: StepContext, available, step: int, push: int) -> Choice:
         """The choices of the ``push``-th push of the step."""

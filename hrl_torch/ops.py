@@ -18,11 +18,24 @@ def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
 
 
+#: ``columns`` gathers through a transposed copy from this many elements of ``x`` on (CPU)
+COLUMNS_TRANSPOSED = 1 << 14
+
+
 def columns(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """``x[:, index]`` for ``x [B, N, ...]`` and any-shaped ``index`` into ``N``."""
+    """``x[:, index]`` for ``x [B, N, ...]`` and any-shaped ``index`` into ``N``.
+
+    On the CPU, ``index_select`` along dimension 1 copies element by element (1.1 ms for
+    ``[5120, 14]`` bools to ``[5120, 126]``); from ``COLUMNS_TRANSPOSED`` elements on the
+    gather goes along dimension 0 of a transposed copy instead (about 20x faster there).
+    """
+    shape = (x.shape[0], *index.shape, *x.shape[2:])
+    if x.device.type == "cpu" and x.numel() >= COLUMNS_TRANSPOSED:
+        picked = x.transpose(0, 1).contiguous().index_select(0, index.reshape(-1))
+        return picked.transpose(0, 1).contiguous().view(shape)
     if index.dim() == 1:
         return x.index_select(1, index)
-    return x.index_select(1, index.reshape(-1)).view(x.shape[0], *index.shape, *x.shape[2:])
+    return x.index_select(1, index.reshape(-1)).view(shape)
 
 
 def discount(gamma: float, time: torch.Tensor) -> torch.Tensor:

@@ -187,3 +187,14 @@ class BatchRNG:
     def load_state_dict(self, state: dict[str, int]) -> None:
         """Continue from a saved counter."""
         self.counter = int(state["counter"])
+
+
+def choosing_levels(graph, width: int) -> torch.Tensor:
+    """Columns ``[levels - 1, width]`` of a draw of ``width`` numbers per stack level.
+
+    The deepest level holds a primitive and never chooses: a policy whose draw has a block
+    per level reads only these (``BatchRNG.uniform(columns=...)`` computes only them, the
+    same numbers as the whole draw's).
+    """
+    levels = max(graph.max_levels - 1, 1)
+    return torch.arange(levels)[:, None] * width + torch.arange(width)

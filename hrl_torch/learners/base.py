@@ -22,7 +22,7 @@ from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_n
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import add_at, at_rows, lookup
-from hrl_torch.rng import BatchRNG
+from hrl_torch.rng import BatchRNG, choosing_levels
 from hrl_torch.tables import EvalPlan, TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
@@ -256,9 +256,8 @@ class ValuePolicy:
         self.all_at_once = hasattr(learner, "instance_action_values")
         # one step's draw is a block of uniforms per level that can choose (all but the
         # deepest); choosers read their level's block
-        slots = torch.arange(self.width, device=g.chooser_depth.device)
-        self._level_columns = torch.arange(max(g.max_levels - 1, 1))[:, None] * self.width + slots
-        self._chooser_columns = g.chooser_depth[:, None] * self.width + slots
+        self._level_columns = choosing_levels(g, self.width)
+        self._chooser_columns = g.chooser_depth[:, None] * self.width + torch.arange(self.width)
         self._draw: int | None = None
 
     def new_step(self) -> None:

@@ -50,6 +50,7 @@ from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.learners.base import Learner
 from hrl_torch.ops import lookup
 from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
+from hrl_torch.rng import choosing_levels
 from hrl_torch.tables import TableBank
 from hrl_torch.tiles import TileCoder
 from hrl_torch.validate import check_fraction, check_positive, check_step_size
@@ -66,7 +67,9 @@ def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
     level = batch[LEVEL]
     root_end = level["terminal"][:, 0] | level["truncated"][:, 0]
     parent = (depths - 1).clamp_min(0)
-    return torch.where(depths[None, :] == 0, root_end[:, None], level["valid"][:, parent])
+    return torch.where(
+        depths[None, :] == 0, root_end[:, None], level["valid"].index_select(1, parent)
+    )
 
 
 @dataclass
@@ -229,6 +232,15 @@ class HPGRLLearner(Learner):
         return block[:, : getattr(head, "n_children", head.n_cols)]
 
     # ------------------------------------------------------------------ per-row state
+    def _pair_base(self, b: int, device: torch.device) -> torch.Tensor:
+        """``[B, S]``: the first ring slot of every (row, depth) pair in the flat rings."""
+        cached = self.__dict__.get("_pair_base_cache")
+        if cached is None or cached.shape[0] != b or cached.device != device:
+            s, k1 = len(self.depths), self.config.trace_len + 1
+            cached = torch.arange(b * s, device=device).view(b, s) * k1
+            self.__dict__["_pair_base_cache"] = cached
+        return cached
+
     def _row_state(self, b: int, device: torch.device) -> dict[str, torch.Tensor]:
         rows = self._rows
         if not rows or rows["count"].shape[0] != b:
@@ -353,9 +365,11 @@ class HPGRLLearner(Learner):
         internal rewards.
         """
         level = batch[LEVEL]
-        r = (level["reward"] + level["internal_reward"] + level["pseudo_reward"])[:, depths]
+        r = (level["reward"] + level["internal_reward"] + level["pseudo_reward"]).index_select(
+            1, depths
+        )
         if self.feature_reward:
-            feats = level["next_features"][:, depths]
+            feats = level["next_features"].index_select(1, depths)
             for fn, fn_nodes in self.feature_reward:
                 uses = (node[..., None] == fn_nodes.to(node.device)).any(-1)
                 r = r + torch.where(uses, fn(feats.reshape(-1, feats.shape[-1])).view_as(r), 0.0)
@@ -367,8 +381,8 @@ class HPGRLLearner(Learner):
         cfg, depths = self.config, self.depths
         b = batch.batch_size[0]
         rows = self._row_state(b, self.theta.device)
-        node = level["node"][:, depths]
-        valid = level["valid"][:, depths] & (self.node_group[node] >= 0)
+        node = level["node"].index_select(1, depths)
+        valid = level["valid"].index_select(1, depths) & (torch.take(self.node_group, node) >= 0)
         r = self.rewards(batch, node, depths)
         count, k = rows["count"], cfg.trace_len
         if bool((valid & (count >= k)).any()):
@@ -377,19 +391,22 @@ class HPGRLLearner(Learner):
                 f"PG node {name!r} selected more than trace_len={k} children in one invocation; "
                 "raise PGConfig.trace_len or bound the subtask with the executor's guard"
             )
-        # line 14: z_{k+1} = z_k + grad mu / mu (the ended child's choice joins the ring)
-        pos = torch.where(valid, count, k)
-        s = len(depths)
+        # line 14: z_{k+1} = z_k + grad mu / mu (the ended child's choice joins the ring):
+        # one slot per (row, depth), the last (k) for the pairs with nothing to add
+        slot = (self._pair_base(b, valid.device) + torch.where(valid, count, k)).view(-1)
         for key, src in (("index", "score_index"), ("value", "score_value")):
             ring = rows[key]
-            at = pos.view(b, s, 1, 1).expand(-1, -1, 1, ring.shape[-1])
-            ring.scatter_(2, at, level[src][:, depths, None, :])
-        rows["reward"].scatter_(2, pos[..., None], r[..., None])
+            ring.view(-1, ring.shape[-1]).index_copy_(
+                0, slot, level[src].index_select(1, depths).flatten(0, 1)
+            )
+        rows["reward"].view(-1).index_copy_(0, slot, r.reshape(-1))
         count += valid
         ended = invocation_ended(batch, depths) & (count > 0)
         # line 16: every entry of z weighted by this step's R + r~ now (online), or by its
         # reward-to-go once the cycle ends (Equation 5.2)
-        cell = batch["learner"][:, None] * len(self.group_names) + self.node_group[node].clamp(0)
+        cell = batch["learner"][:, None] * len(self.group_names) + torch.take(
+            self.node_group, node
+        ).clamp(0)
         self._apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
         if cfg.frozen and bool(ended.any()):
             gid = self.node_group[node]
@@ -463,12 +480,12 @@ class PGPolicy:
         self.learner = learner
         self.rng = rng
         self.greedy = greedy
+        self._columns = choosing_levels(learner.graph, 3)
         self._u = None
 
     def new_step(self) -> None:
-        """Draw this step's uniforms ``[B, levels, 3]``."""
-        levels = self.learner.graph.max_levels
-        self._u = self.rng.uniform(levels * 3).view(-1, levels, 3)
+        """Draw this step's uniforms ``[B, levels - 1, 3]`` (the levels that can choose)."""
+        self._u = self.rng.uniform(self.learner.graph.max_levels * 3, columns=self._columns)
 
     def select(self, inst, ctx, available, step, push) -> Choice:
         """The choices of the ``push``-th push of the step."""
@@ -538,7 +555,7 @@ class ActorCriticLearner(HPGRLLearner):
             rows["has_prev"] = torch.zeros(b, dtype=torch.bool, device=dev)
         depths = self.depths[:1]
         valid = level["valid"][:, 0]
-        r = self.rewards(batch, level["node"][:, depths], depths)[:, 0]
+        r = self.rewards(batch, level["node"].index_select(1, depths), depths)[:, 0]
         learner, feats = batch["learner"], level["features"][:, 0]
         tiles = torch.where(valid[:, None], self._q_tiles(learner, feats, prim["action"]), none)
         q = critic.value(tiles)

@@ -130,7 +130,7 @@ class QLambdaLearner(TabularLearner):
         b = batch.batch_size[0]
         rows = self._row_state(b, self.Q.data.device)
         level = batch[LEVEL]
-        pick = lambda key: level[key][:, depths]  # noqa: E731
+        pick = lambda key: level[key].index_select(1, depths)  # noqa: E731
         node, inst, terminal = pick("node"), pick("inst"), pick("terminal")
         learner = batch["learner"][:, None].expand_as(node)
         table = lay.inst_table[inst.clamp_min(0)]

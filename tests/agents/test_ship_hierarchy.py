@@ -352,3 +352,31 @@ def test_hybrid_learns_to_pass_the_gate():
     assert (gate > 0.5).all(), gate
     first = episodes.block_means()["success"][:, 0]
     assert (gate > first + 0.3).all()
+
+
+def test_a_new_direction_invocation_chooses_from_features_of_its_own_start():
+    # a direction subtask remembers where it started; its first choice, and the features its
+    # first transition starts from, must be computed from that start (the local frame puts
+    # the ship at the subtask's start state), not from the previous invocation's origin
+    graph = ship_hierarchy()
+    seeds = [0, 1]
+    learner = make_hybrid(graph, len(seeds))
+    env = ShipSteeringEnv(seeds, 16)
+    agent = HierarchicalAgent(graph, learner, EpsilonGreedy(0.1), BatchRNG(seeds, 16, "x"), 16)
+    action = agent.start(env.reset())
+    checked = 0
+    for _ in range(200):
+        ex = agent.executor
+        new = ex.invoked[:, 1] & (ex.stack.top >= 1)  # a direction subtask started just now
+        if bool(new.any()):
+            obs = agent.ctx.obs
+            rows = new.nonzero().squeeze(1)
+            for b in rows.tolist():
+                node = graph.nodes[int(ex.stack.node[b, 1])]
+                sub = obs[b : b + 1]
+                expected = node.features(sub, node.remember(sub))
+                got = ex.stack.start_features[b : b + 1, 1, : node.n_features]
+                assert torch.allclose(got, expected), (b, got, expected)
+                checked += 1
+        action = agent.step(env.step(action))
+    assert checked > 20
