@@ -316,24 +316,35 @@ class HierarchicalExecutor:
         ``d`` (``push=d``); a policy's scores and continuous actions are kept on the stack.
         ``new_features``: the features ``[B, N, F]`` of new invocations
         (``graph.start_features``), which the rows whose instance at ``d`` was pushed in this
-        act choose from.
+        act choose from. On large CPU batches a policy with ``select_rows`` chooses for the
+        rows that choose at a level only (the same choices, fewer values).
         """
         g = self.graph
         ic = g.n_choosers
         code = self._start_code(f)  # back to instances + 1 (0: none)
         col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
+        compact = (
+            hasattr(policy, "select_rows")
+            and self.device.type == "cpu"
+            and self.batch_size >= self.COMPACT_ROWS
+        )
         flags, scores = [], []
         for level in range(self.depth - 1):
             node = torch.take(g.inst_node_1, col)
             at_level = torch.take(g.inst_depth_1, col) == level
             chooses = torch.take(g.inst_composite_1, col) & at_level
-            available = self._available_flat(ctx).index_select(0, self._row_base + node)
             seen = ctx
             if new_features is not None:  # rows whose instance at this level started now
                 started = (level > f["top"])[:, None, None]
                 seen = replace(ctx, features=torch.where(started, new_features, ctx.features))
-            choice = _as_choice(policy.select((col - 1).clamp_min(0), seen, available, step, level))
-            child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
+            if compact:
+                choice, child = self._choose_rows(seen, policy, step, level, col, node, chooses)
+            else:
+                available = self._available_flat(ctx).index_select(0, self._row_base + node)
+                choice = _as_choice(
+                    policy.select((col - 1).clamp_min(0), seen, available, step, level)
+                )
+                child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
             if choice.score_index is not None:
                 scores.append((level, chooses, choice))
             if g.action_dim:
@@ -345,6 +356,42 @@ class HierarchicalExecutor:
         if scores:
             self._record_scores(f, scores)
         return col, own
+
+    #: from this many rows on (CPU), the level-by-level choices are made for the rows that
+    #: choose at the level only (``policy.select_rows``)
+    COMPACT_ROWS = 1024
+
+    def _choose_rows(self, ctx, policy, step, level, col, node, chooses):
+        """One level's choices, made for the rows that choose only: ``(choice, child)``.
+
+        ``choice`` holds every row's values (0, greedy, no score where a row does not
+        choose), ``child`` the chosen instance + 1 of every choosing row.
+        """
+        g = self.graph
+        rows = chooses.nonzero().squeeze(1)
+        inst1, node = col.index_select(0, rows), node.index_select(0, rows)
+        available = self._available_flat(ctx).index_select(0, rows * g.n_nodes + node)
+        part = _as_choice(
+            policy.select_rows((inst1 - 1).clamp_min(0), ctx, available, step, level, rows)
+        )
+        child = torch.take(g.inst_children_1, inst1 * g.max_children + part.child)
+        full = torch.zeros_like(col)
+        out = Choice(
+            full.index_copy(0, rows, part.child),
+            torch.ones_like(chooses).index_copy(0, rows, part.greedy),
+        )
+        if part.action is not None:
+            out.action = torch.zeros(
+                col.shape[0], part.action.shape[1], device=col.device
+            ).index_copy(0, rows, part.action)
+        if part.score_index is not None:
+            out.score_index = torch.zeros(
+                col.shape[0], part.score_index.shape[1], dtype=torch.long, device=col.device
+            ).index_copy(0, rows, part.score_index)
+            out.score_value = torch.zeros(
+                col.shape[0], part.score_value.shape[1], device=col.device
+            ).index_copy(0, rows, part.score_value)
+        return out, full.index_copy(0, rows, child)
 
     def _available_flat(self, ctx: StepContext) -> torch.Tensor:
         """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""

@@ -168,9 +168,9 @@ class HybridLearner(Learner):
         self.value.evaluate(ctx)
         self.pg.evaluate(ctx)
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """The value learner's action values."""
-        return self.value.action_values(inst, ctx)
+    def action_values(self, inst: torch.Tensor, ctx: StepContext, rows=None) -> torch.Tensor:
+        """The value learner's action values (of the batch rows ``rows`` when given)."""
+        return self.value.action_values(inst, ctx, rows)
 
     @property
     def score_width(self) -> int:
@@ -220,28 +220,43 @@ class HybridPolicy:
         self.rng = rng
         self.width = learner.graph.max_children + 4
         self._columns = choosing_levels(learner.graph, self.width)
-        self._u = None
+        self._draw: int | None = None
 
     def new_step(self) -> None:
-        """Draw this step's uniforms ``[B, levels - 1, A + 4]`` (the levels that can choose)."""
+        """Take this step's draw (uniforms ``[B, levels - 1, A + 4]``, read when asked)."""
+        self._draw = self.rng.reserve(1)
+
+    @property
+    def _u(self) -> torch.Tensor:
+        """This step's uniforms of every row ``[B, levels - 1, A + 4]``."""
         width = self.learner.graph.max_levels * self.width
-        self._u = self.rng.uniform(width, columns=self._columns)
+        return self.rng.uniform(width, counter=self._draw, columns=self._columns)
 
     def select(self, inst, ctx: StepContext, available, step: int, push: int) -> Choice:
         """The choices of the ``push``-th push of the step."""
+        return self._choose(inst, ctx, available, step, self._u[:, push])
+
+    def select_rows(self, inst, ctx: StepContext, available, step: int, push: int, rows):
+        """``select`` for the batch rows ``rows [R]`` only (their numbers alone are drawn)."""
+        width = self.learner.graph.max_levels * self.width
+        u = self.rng.uniform_rows(width, self._draw, rows, self._columns[push])
+        return self._choose(inst, ctx, available, step, u, rows)
+
+    def _choose(self, inst, ctx, available, step, u, rows=None) -> Choice:
+        """The choices of instances ``inst`` (at batch rows ``rows``; all rows if ``None``)."""
         lrn = self.learner
         a = available.shape[1]
-        u = self._u[:, push]
         node = lrn.graph.inst_node[inst]
         pg_row = lrn.pg.node_group[node] >= 0
-        out = lrn.pg.select(inst, ctx, available, u[:, a + 1 :], self.greedy)
+        out = lrn.pg.select(inst, ctx, available, u[:, a + 1 :], self.greedy, rows=rows)
         if not bool(pg_row.all()):
-            q = lrn.value.action_values(inst, ctx)
+            q = lrn.value.action_values(inst, ctx, rows)
             best, _ = Greedy().select(q, available, u, step)
             if self.greedy:
                 v_choice, v_flag = best, torch.ones_like(pg_row)
             elif lrn.epsilon is not None:
-                explore = u[:, a] < lrn.epsilon.values()[ctx.learner]
+                learner = ctx.learner if rows is None else ctx.learner[rows]
+                explore = u[:, a] < lrn.epsilon.values()[learner]
                 v_choice = torch.where(explore, uniform_choice(available, u[:, :a]), best)
                 v_flag = v_choice == best
             else:

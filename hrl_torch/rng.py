@@ -139,6 +139,21 @@ class BatchRNG:
         where = torch.tensor([needed.index(c) for c in columns.reshape(-1).tolist()])
         return u.index_select(-1, where.to(u.device)).view(*u.shape[:2], *columns.shape)
 
+    def uniform_rows(
+        self, extra: int, counter: int, rows: torch.Tensor, columns: torch.Tensor
+    ) -> torch.Tensor:
+        """Draw ``counter``'s columns ``columns`` (any shape) for the rows ``rows [R]`` only.
+
+        ``[R, *columns.shape]``, what ``uniform(extra, counter, columns)[rows]`` gives,
+        computing only those numbers (for large batches of which few rows need a draw).
+        """
+        base = _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
+        cols = columns.reshape(-1).tolist()
+        keys = torch.tensor([_mix32_int(j + base) for j in cols], device=self.device)
+        bits = mix32(self._row_key.index_select(0, rows)[:, None] ^ keys)
+        u = (bits >> 8).to(torch.float32) * (1.0 / 16777216.0)
+        return u.view(rows.shape[0], *columns.shape)
+
     def reserve(self, n: int) -> int:
         """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
         first = self.counter

@@ -274,3 +274,33 @@ def test_a_continuous_primitive_takes_the_action_chosen_with_its_push():
     action = ex.act(graph.context(TensorDict({}, batch_size=[2])), ByRow(), 0)
     assert ex.stack.top.tolist() == [1, 2]
     assert action[:, 0].tolist() == [10.0, 21.0]
+
+
+@pytest.mark.parametrize(
+    "domain, algo", [("taxi", "maxq-q"), ("taxi-fuel", "hpgrl"), ("ship-steering", "hybrid")]
+)
+def test_choosing_for_the_choosing_rows_only_gives_the_same_run(domain, algo, monkeypatch):
+    # large CPU batches choose level by level for the rows that choose at a level only
+    # (policy.select_rows, their random numbers alone drawn): the same choices, tables and
+    # stacks as choosing for every row
+    import agents  # noqa: F401
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.learners.base import ValuePolicy
+
+    monkeypatch.setattr(ValuePolicy, "ALL_AT_ONCE_LIMIT", 0)  # (value learners: level by level)
+
+    def run(compact_from):
+        monkeypatch.setattr(HierarchicalExecutor, "COMPACT_ROWS", compact_from)
+        opts = RunOptions(seeds=[3, 4], envs_per_learner=5, progress=False, tensorboard=False)
+        trainer = build_trainer(registry.get(domain), algo, opts)
+        for _ in range(60):
+            trainer.train_step()
+        return trainer.learner.state_dict(), trainer.executor.stack.state_dict()
+
+    (every_learner, every_stack), (some_learner, some_stack) = run(10**9), run(1)
+    for k, v in every_learner.items():
+        if isinstance(v, torch.Tensor):
+            assert torch.equal(v, some_learner[k]), k
+    for k in ("inst", "child", "start_state", "reward", "score_index", "score_value"):
+        assert torch.equal(every_stack[k], some_stack[k]), k

@@ -71,3 +71,13 @@ def test_a_draws_columns_are_the_columns_of_the_whole_draw():
         got = part.uniform(7, columns=cols)
         assert got.shape == (8, 2, 3)
         assert torch.equal(got, expect[:, cols])
+
+
+def test_a_draw_for_some_rows_is_those_rows_of_the_whole_draw():
+    rng = BatchRNG([2, 3], 5, "r")
+    first = rng.reserve(3)
+    rows = torch.tensor([9, 0, 4])
+    cols = torch.tensor([[6, 2], [0, 1]])
+    for c in (first, first + 2):
+        whole = rng.uniform(8, counter=c, columns=cols)
+        assert torch.equal(rng.uniform_rows(8, c, rows, cols), whole[rows])

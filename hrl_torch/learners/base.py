@@ -158,9 +158,18 @@ class TabularLearner(Learner):
         kids = plan.child_index(per_table[0].shape[0])
         yield from zip(plan.group_ids, kids, *parts, strict=True)
 
-    def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
-        """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``."""
-        return at_rows(ctx.values["Q"], lookup(self.plan.inst_pos, inst))
+    def action_values(
+        self, inst: torch.Tensor, ctx: StepContext, rows: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """The rows ``ctx.values["Q"]`` of the instances ``inst [B]``: ``[B, A]``.
+
+        With ``rows [R]``: ``inst [R]`` are the instances of those batch rows.
+        """
+        q = ctx.values["Q"]
+        if rows is None:
+            return at_rows(q, lookup(self.plan.inst_pos, inst))
+        flat = q.reshape(q.shape[0] * q.shape[1], q.shape[2])
+        return flat.index_select(0, rows * q.shape[1] + lookup(self.plan.inst_pos, inst))
 
     def instance_action_values(self, ctx: StepContext) -> torch.Tensor:
         """The rows of every choosing instance (``plan.choosers``): ``[B, Ic, A]``."""
@@ -277,6 +286,18 @@ class ValuePolicy:
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
         u = self._uniforms(self._level_columns)[:, push]
+        return Choice(*self.exploration.select(q, available, u, step))
+
+    def select_rows(self, inst, ctx: StepContext, available, step: int, push: int, rows):
+        """``select`` for the batch rows ``rows [R]`` only (``inst``, ``available`` theirs).
+
+        The same choices as ``select``'s at those rows; only their numbers are drawn.
+        """
+        q = self.learner.action_values(inst, ctx, rows)
+        if self.choice_cost is not None:
+            q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
+        width = self.learner.graph.max_levels * self.width
+        u = self.rng.uniform_rows(width, self._draw, rows, self._level_columns[push])
         return Choice(*self.exploration.select(q, available, u, step))
 
     def choose_all(self, ctx: StepContext, step: int) -> Choice | None:

@@ -277,8 +277,12 @@ class HPGRLLearner(Learner):
         u: torch.Tensor,
         greedy: bool = False,
         step: int = 0,
+        rows: torch.Tensor | None = None,
     ) -> Choice:
         """Choose children of PG instances ``inst [B]`` (other rows: ignored values).
+
+        ``rows [R]``: ``inst``, ``available`` and ``u`` are those batch rows' (``ctx`` is the
+        whole batch's); ``None``: every row.
 
         ``u [B, 3]`` uniforms (a softmax sample, two for a normal). Each node's head chooses
         for its rows; with ``greedy`` it takes the mode, otherwise it samples and the choice
@@ -294,16 +298,18 @@ class HPGRLLearner(Learner):
         score = torch.zeros(b, self.width, device=dev)
         out = Choice(choice, flag, action, None if greedy else index, None if greedy else score)
         node = lookup(g.inst_node, inst)
-        rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)
+        batch_rows = rows
+        rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)  # (in this batch)
         if rows.numel() == 0:
             return out
         node, gid = node[rows], lookup(self.node_group, node[rows])
-        at = rows * g.n_nodes + node  # (row, node) in the context's flat [B * N, ...] fields
+        ctx_rows = rows if batch_rows is None else batch_rows.index_select(0, rows)
+        at = ctx_rows * g.n_nodes + node  # (row, node) in the context's flat [B * N, ...] fields
         features = None
         if ctx.features is not None:
             features = ctx.features.view(-1, ctx.features.shape[2]).index_select(0, at)
         inp = PolicyInput(
-            base=ctx.learner[rows] * self.total + lookup(self.params.offset, gid),
+            base=ctx.learner[ctx_rows] * self.total + lookup(self.params.offset, gid),
             state=torch.take(ctx.abstract, at),
             features=features,
             available=available[rows],
@@ -481,15 +487,23 @@ class PGPolicy:
         self.rng = rng
         self.greedy = greedy
         self._columns = choosing_levels(learner.graph, 3)
-        self._u = None
+        self._draw: int | None = None
 
     def new_step(self) -> None:
-        """Draw this step's uniforms ``[B, levels - 1, 3]`` (the levels that can choose)."""
-        self._u = self.rng.uniform(self.learner.graph.max_levels * 3, columns=self._columns)
+        """Take this step's draw (uniforms ``[B, levels - 1, 3]``, read when asked)."""
+        self._draw = self.rng.reserve(1)
 
     def select(self, inst, ctx, available, step, push) -> Choice:
         """The choices of the ``push``-th push of the step."""
-        return self.learner.select(inst, ctx, available, self._u[:, push], self.greedy, step)
+        width = self.learner.graph.max_levels * 3
+        u = self.rng.uniform(width, counter=self._draw, columns=self._columns)[:, push]
+        return self.learner.select(inst, ctx, available, u, self.greedy, step)
+
+    def select_rows(self, inst, ctx, available, step, push, rows) -> Choice:
+        """``select`` for the batch rows ``rows [R]`` only (their numbers alone are drawn)."""
+        width = self.learner.graph.max_levels * 3
+        u = self.rng.uniform_rows(width, self._draw, rows, self._columns[push])
+        return self.learner.select(inst, ctx, available, u, self.greedy, step, rows)
 
 
 class ActorCriticLearner(HPGRLLearner):
