@@ -222,18 +222,27 @@ class HierarchicalExecutor:
 
     @property
     def stack(self) -> TaskStack:
-        """The Task-Stacks of the rows (replaced, never written, by ``observe`` and ``act``)."""
+        """The Task-Stacks of the rows (replaced, never written, by ``observe`` and ``act``).
+
+        (The executor keeps the fields as a dict and makes the ``TaskStack`` when asked.)
+        """
+        if self._stack is None:
+            self._stack = TaskStack.from_tensors(self._fields, self.batch_size)
         return self._stack
 
     @stack.setter
     def stack(self, stack: TaskStack) -> None:
-        self._stack = stack
+        self._stack, self._fields = stack, stack.tensors()
         self._guard_quiet = 0  # stacks from elsewhere: check the guard at the next step
+
+    def _replace(self, fields: dict) -> None:
+        """Take ``fields`` (new tensors, the old ones untouched) as the stacks."""
+        self._fields, self._stack = fields, None
 
     @property
     def memory(self) -> torch.Tensor:
         """What each node's running invocation remembered ``[B, n_nodes, M]`` (for contexts)."""
-        return self.stack.memory
+        return self._fields["memory"]
 
     def reset(self) -> None:
         """Empty every stack (all rows start at the root on the next ``act``)."""
@@ -250,7 +259,7 @@ class HierarchicalExecutor:
         depth ``d`` reading the row's random numbers of level ``d``), and the descent follows
         those choices; otherwise the policy's ``select`` is asked level by level.
         """
-        g, f = self.graph, self.stack.tensors()
+        g, f = self.graph, dict(self._fields)
         policy.new_step()
         # a node that remembers where it started sees its features relative to that start:
         # a new invocation's come from what it remembers now, not from the previous one's
@@ -268,7 +277,7 @@ class HierarchicalExecutor:
         else:
             top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step, new_features)
         self._push(f, ctx, top1, own_greedy, new_features)
-        self._stack = TaskStack.from_tensors(f, self.batch_size)
+        self._replace(f)
         self._acting = None
         if g.action_dim:
             self._action = torch.where((f["top"] >= 0)[:, None], f["cont_action"], 0.0)
@@ -482,7 +491,7 @@ class HierarchicalExecutor:
 
         With ``transitions=False`` (greedy evaluation, no learning) nothing is returned.
         """
-        g, f = self.graph, self.stack.tensors()
+        g, f = self.graph, dict(self._fields)
         step = entries(step_td)
         # multi-agent rows (``hrl_torch.multiagent``): an agent that does not act at this step
         # is in the middle of its primitive action; its stack waits untouched
@@ -529,7 +538,7 @@ class HierarchicalExecutor:
         f["inst"] = inst.masked_fill(popped, -1)
         f["top"] = (f["top"] - popped.sum(1)).masked_fill(is_init, -1)
         f["done"] = (term | trunc) & real
-        self._stack = TaskStack.from_tensors(f, self.batch_size)
+        self._replace(f)
         return batch
 
     def _bad_steps(self, step: dict, f: dict):
