@@ -60,7 +60,8 @@ MUTANTS: list[Mutant] = [
         "maxq-gamma-not-gamma-n",
         "hrl_torch/learners/maxq.py",
         'factor = None if self.gamma == 1.0 else discount(self.gamma, level["duration"])',
-        'factor = None if self.gamma == 1.0 else discount(self.gamma, torch.ones_like(level["duration"]))',
+        "factor = None if self.gamma == 1.0 else "
+        'discount(self.gamma, torch.ones_like(level["duration"]))',
         "MAXQ discounts a multi-step child by gamma instead of gamma^N",
         ("tests/learners/test_hand_computed_targets.py", "tests/learners/test_maxq_exact.py"),
     ),
@@ -671,7 +672,8 @@ MUTANTS: list[Mutant] = [
         "plan-group-slice-short",
         "hrl_torch/tables.py",
         "cached = [rows + kids.view(-1, self.cols.shape[0]) for kids in self.group_children]",
-        "cached = [rows + kids.view(-1, self.cols.shape[0]).roll(1, 0) for kids in self.group_children]",
+        "cached = [rows + kids.view(-1, self.cols.shape[0]).roll(1, 0) "
+        "for kids in self.group_children]",
         "the bottom-up evaluation reads the children of another table of the same height",
         ("tests/learners/test_maxq_exact.py", "tests/learners/test_hand_computed_targets.py"),
     ),
@@ -865,8 +867,10 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-descent-one-round-short",
         "hrl_torch/executor.py",
-        "        for _ in range(self.depth - 1):\n            code = torch.take(nxt, self._code_base + code)",
-        "        for _ in range(self.depth - 2):\n            code = torch.take(nxt, self._code_base + code)",
+        "        for _ in range(self.depth - 1):\n"
+        "            code = torch.take(nxt, self._code_base + code)",
+        "        for _ in range(self.depth - 2):\n"
+        "            code = torch.take(nxt, self._code_base + code)",
         "the descent stops one level early (a subtask, not a primitive, on top)",
         (EXECUTOR, MAXQ_EXACT),
     ),
