@@ -332,6 +332,7 @@ def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: 
     A failed start of a fresh run removes the folder ``make_run_dir`` made.
     """
     resumed_at = None if state is None else int(state["trainer"]["step"])
+    logger = None
     try:
         logger = RunLogger(
             run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
@@ -340,6 +341,8 @@ def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: 
         if state is not None:
             trainer.load_state_dict(state["trainer"])
     except BaseException:
+        if logger is not None:  # its writers' threads stop before their folder goes
+            logger.close()
         if not opts.resume:  # a failed start leaves no half-made run folder behind
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
