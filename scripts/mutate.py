@@ -73,7 +73,9 @@ def run_pytest(copy: Path, args: list[str], timeout: float) -> tuple[bool, str]:
     except subprocess.TimeoutExpired:
         return False, f"timeout after {timeout:.0f} s"
     lines = [ln for ln in out.stdout.strip().splitlines() if ln.strip()]
-    return out.returncode == 0, lines[-1] if lines else out.stderr.strip()[-200:]
+    failed = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
+    last = lines[-1] if lines else out.stderr.strip()[-200:]
+    return out.returncode == 0, "; ".join([*failed[:1], last])
 
 
 def run_mutant(
