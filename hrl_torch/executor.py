@@ -37,6 +37,11 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
 ``batch[PRIMITIVE]`` ``[B]``, the primitive step just taken: ``valid``, ``inst``, ``node``,
 ``state``, ``reward``, ``duration``, ``greedy`` (its parent and all ancestors chose greedily),
 ``action`` (the env action, ``[B, action_dim]`` in continuous action spaces).
+
+Some keys are computed only when the executor's ``uses`` asks for them (``OPTIONAL``; a
+learner names the ones it reads in ``Learner.uses``): ``parent_inst``, ``next_state``,
+``truncated``, the greedy flags, and ``batch[PRIMITIVE]``'s fields other than ``reward`` and
+``duration``.
 """
 
 from __future__ import annotations
@@ -83,7 +88,15 @@ class Choice:
 
 
 class Policy(Protocol):
-    """Chooses children for the instances on top of the stacks."""
+    """Chooses children for the instances on top of the stacks.
+
+    Besides ``select`` a policy may offer ``choose_all(ctx, step) -> Choice | None``: the
+    choices ``[B, Ic]`` of every choosing instance (``graph.choosers``) at once, which the
+    executor then follows down the stacks (``None``: ask ``select``); and
+    ``select_rows(inst, ctx, available, step, push, rows) -> Choice``: ``select`` for the
+    batch rows ``rows [R]`` only (``inst`` and ``available`` are theirs), the same choices as
+    ``select`` makes for those rows, used on large CPU batches.
+    """
 
     def new_step(self) -> None:
         """Called once at the start of every ``act`` (draw this step's random numbers)."""
@@ -94,7 +107,8 @@ class Policy(Protocol):
     ) -> Choice:
         """The choices for instances ``inst [B]`` among ``available [B, A]`` children.
 
-        ``push`` counts the pushes made so far in this step. (A tuple ``(child, greedy[,
+        ``push`` is the stack level (depth) of the instances that choose; rows whose instance
+        does not choose at this level get any value (ignored). (A tuple ``(child, greedy[,
         action])`` is accepted too.)
         """
         ...
@@ -188,7 +202,6 @@ class HierarchicalExecutor:
         )
         self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
         self._row_base = self.rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
-        self.levels_row = self.levels[None, :]
         # the descent (``_descend``): row b's blocks of choices, codes and greedy flags
         ic, codes = graph.n_choosers, graph.n_choosers + graph.n_instances + 1
         self._chooser_base = (torch.arange(ic, **long) * graph.max_children)[None, :]
