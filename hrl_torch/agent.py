@@ -113,6 +113,7 @@ class HierarchicalAgent:
             learner=rows,
             score_width=0 if evaluate else getattr(learner, "score_width", 0),
             uses=getattr(learner, "uses", None) if uses is None else uses,
+            count_stats=learn,  # (nobody reads an evaluation's subtask statistics)
         )
         self.rows = self.executor.learner
         self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}

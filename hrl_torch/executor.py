@@ -155,6 +155,7 @@ class HierarchicalExecutor:
         uses: the optional transition keys the consumers read (``OPTIONAL``), ``None``: all.
             The others are left out of the transitions, and the greedy flags are not kept
             on the stacks unless ``"greedy"`` is in ``uses``.
+        count_stats: keep the subtask statistics (``stats``; off for evaluation agents).
     """
 
     #: transition keys computed only when asked for (``uses``): ``batch[LEVEL]``'s
@@ -173,6 +174,7 @@ class HierarchicalExecutor:
         learner: torch.Tensor | None = None,
         score_width: int = 0,
         uses: frozenset[str] | None = None,
+        count_stats: bool = True,
     ) -> None:
         unknown = set(uses or ()) - self.OPTIONAL
         if unknown:
@@ -228,6 +230,7 @@ class HierarchicalExecutor:
         #: ``interrupt(popped [B, D], ended_own [B, D]) -> [B, D]``: more levels to cut
         self.interrupt = None
         self.stats = ExecutorStats(self.learner, self.n_learners, graph.n_nodes)
+        self.count_stats = count_stats
         #: env steps skipped per learner (``on_bad_step="skip"``)
         self.skipped_steps = torch.zeros(self.n_learners, device=device)
         #: levels ``[B, D]`` whose node was invoked by the last ``act``
@@ -547,7 +550,8 @@ class HierarchicalExecutor:
         if self.config.record_visited:
             self._record_visits(f, chose & ~child_ended, ctx, node)
 
-        self.stats.count(node, self.invoked, popped, ended_own, f["inv_steps"])
+        if self.count_stats:
+            self.stats.count(node, self.invoked, popped, ended_own, f["inv_steps"])
         f["inst"] = inst.masked_fill(popped, -1)
         f["top"] = (f["top"] - popped.sum(1)).masked_fill(is_init, -1)
         f["done"] = (term | trunc) & real
