@@ -233,9 +233,10 @@ class TabularLearner(Learner):
 class ValuePolicy:
     """Chooses children from a learner's action values with an exploration strategy.
 
-    Every step draws one block of uniforms per stack level (``new_step``), and a choice made
-    at level ``l`` reads block ``l``: a row's random stream never depends on what other rows
-    do, so a population equals separate runs. Tabular learners (``instance_action_values``)
+    Every step takes one draw of the rows' random streams (``new_step``): a block of uniforms
+    per stack level that can choose, and a choice made at level ``l`` reads block ``l``: a
+    row's random stream never depends on what other rows do, so a population equals separate
+    runs. Tabular learners (``instance_action_values``)
     choose for every choosing instance at once (``choose_all``); the executor then follows
     those choices down the stack. Other learners are asked level by level (``select``).
 
@@ -266,7 +267,8 @@ class ValuePolicy:
         # one step's draw is a block of uniforms per level that can choose (all but the
         # deepest); choosers read their level's block
         self._level_columns = choosing_levels(g, self.width)
-        self._chooser_columns = g.chooser_depth[:, None] * self.width + torch.arange(self.width)
+        slots = torch.arange(self.width, device=g.chooser_depth.device)
+        self._chooser_columns = g.chooser_depth[:, None] * self.width + slots
         self._draw: int | None = None
 
     def new_step(self) -> None:
