@@ -48,7 +48,7 @@ class BatchRNG:
         device: where draws are made.
     """
 
-    AHEAD = 64  # draws of one width computed at once (see ``uniform``)
+    AHEAD = 64  # draws of one kind computed at once (see ``_draw``)
     AHEAD_ELEMENTS = 1 << 18
 
     def __init__(
@@ -74,7 +74,7 @@ class BatchRNG:
             seed_keys.repeat_interleave(envs_per_learner) ^ local.repeat(len(seeds))
         )
         self.counter = 0
-        self._ahead: dict[int, tuple[int, torch.Tensor]] = {}  # width -> (first draw, draws)
+        self._ahead: dict = {}  # kind -> (first draw, its draws onward, the columns)
 
     @property
     def batch_size(self) -> int:
