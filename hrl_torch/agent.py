@@ -50,6 +50,46 @@ def with_values(batch: TensorDict, ctx: StepContext) -> TensorDict:
     return batch
 
 
+class FrozenValues:
+    """A learner's values at every (learner, state) of a tabulated graph, evaluated once.
+
+    A non-learning agent (a greedy evaluation) steps frozen tables many times; when the
+    learner's values are a function of a row's learner and state (``values_per_state``, a
+    tabulated graph), one ``learner.evaluate`` over all of them and one ``index_select`` per
+    value and step give the numbers ``learner.evaluate`` would (each row's arithmetic is the
+    same). Build it anew whenever the tables change.
+    """
+
+    def __init__(self, graph: TaskGraph, learner: Learner) -> None:
+        n_states = graph.tab_abstract.shape[0]
+        device = graph.tab_abstract.device
+        states = torch.arange(n_states, device=device).repeat(learner.n_learners)
+        owner = torch.arange(learner.n_learners, device=device).repeat_interleave(n_states)
+        obs = TensorDict({graph.table_key: states}, batch_size=states.shape)
+        ctx = graph.context(obs, owner)
+        learner.evaluate(ctx)
+        self.values = ctx.values
+        self.n_states = n_states
+
+    @classmethod
+    def build(cls, graph: TaskGraph, learner: Learner, max_rows: int) -> FrozenValues | None:
+        """``FrozenValues`` if the learner and graph allow it within ``max_rows`` rows."""
+        if not learner.values_per_state or graph.table_key is None:
+            return None
+        if learner.n_learners * graph.tab_abstract.shape[0] > max_rows:
+            return None
+        return cls(graph, learner)
+
+    def fill(self, ctx: StepContext) -> None:
+        """``ctx.values`` at ``ctx``'s rows (tensors shared between keys stay shared)."""
+        row = ctx.learner * self.n_states + ctx.table_row
+        looked_up: dict[int, torch.Tensor] = {}
+        for key, value in self.values.items():
+            if id(value) not in looked_up:
+                looked_up[id(value)] = value.index_select(0, row)
+            ctx.values[key] = looked_up[id(value)]
+
+
 def make_policy(learner: Learner, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
     """The executor policy of ``learner``: its own ``make_policy`` if it has one, else values.
 
@@ -120,6 +160,20 @@ class HierarchicalAgent:
         self.clock = 0
         self.ctx: StepContext | None = None
         self.batch: TensorDict | None = None
+        self.frozen: FrozenValues | None = None
+
+    def freeze_values(self, max_rows: int) -> bool:
+        """Evaluate the learner's values at every state once and look them up from now on.
+
+        Only for an agent that does not learn, on a tabulated graph whose learner allows it
+        (``FrozenValues``), and when the states of all learners number at most ``max_rows``
+        (the one-off evaluation costs about as much as a step over that many rows). Returns
+        whether it did; the tables must not change while the agent uses the values.
+        """
+        if self.learn:
+            raise RuntimeError("a learning agent cannot freeze its values")
+        self.frozen = FrozenValues.build(self.graph, self.learner, max_rows)
+        return self.frozen is not None
 
     def subset(self, rows: torch.Tensor) -> HierarchicalAgent:
         """A non-learning agent over the rows ``rows`` only, in their current state.
@@ -148,6 +202,7 @@ class HierarchicalAgent:
         new._obs = None if old._obs is None else old._obs[rows]
         new.invoked = old.invoked[rows]
         sub.clock = self.clock
+        sub.frozen = self.frozen
         return sub
 
     @property
@@ -158,7 +213,10 @@ class HierarchicalAgent:
     def context(self, obs: TensorDict) -> StepContext:
         """The graph's context at ``obs``, with the learner's values in ``ctx.values``."""
         ctx = self.graph.context(obs, self.rows, self.executor.memory)
-        self.learner.evaluate(ctx)
+        if self.frozen is not None:
+            self.frozen.fill(ctx)
+        else:
+            self.learner.evaluate(ctx)
         self.ctx = ctx
         return ctx
 

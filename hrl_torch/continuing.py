@@ -86,11 +86,13 @@ class ThroughputEvaluator:
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
         agent = trainer.evaluation_agent(env, "eval-explore")
+        n_steps = self.max_steps if self.horizon_time else self.burn_in + self.horizon
+        agent.freeze_values(max_rows=env.batch_size * n_steps // 8)  # (as Trainer.evaluate)
         action = agent.start(env.reset())
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
-        for k in range(self.max_steps if self.horizon_time else self.burn_in + self.horizon):
+        for k in range(n_steps):
             td = env.step(action)
             if self.horizon_time:  # the window is a span of time: count what starts in it
                 count = (clock >= self.burn_in_time) & (clock < end)

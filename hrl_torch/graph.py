@@ -616,6 +616,11 @@ class TaskGraph(nn.Module):
         composite = ~self.node_is_primitive
         self.never_stuck = bool(ctx.available.any(-1)[:, composite].all())
 
+    @property
+    def table_key(self) -> str | None:
+        """The observation field ``tabulate`` indexed its tables by (``None``: not tabulated)."""
+        return self._table_key
+
     def context(
         self,
         obs: TensorDict,

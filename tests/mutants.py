@@ -978,4 +978,20 @@ MUTANTS: list[Mutant] = [
         "large column gathers come back transposed",
         ("tests/test_ops.py",),
     ),
+    Mutant(
+        "frozen-values-ignore-learner",
+        "hrl_torch/agent.py",
+        "row = ctx.learner * self.n_states + ctx.table_row",
+        "row = ctx.table_row",
+        "a greedy evaluation looks up every learner's values in learner 0's tables",
+        ("tests/test_frozen_values.py",),
+    ),
+    Mutant(
+        "frozen-values-owner-order",
+        "hrl_torch/agent.py",
+        "owner = torch.arange(learner.n_learners, device=device).repeat_interleave(n_states)",
+        "owner = torch.arange(learner.n_learners, device=device).repeat(n_states)",
+        "the once-per-state evaluation pairs states with the wrong learners",
+        ("tests/test_frozen_values.py",),
+    ),
 ]

@@ -37,6 +37,10 @@ class Learner(nn.Module):
 
     gamma: float = 1.0
     uses: frozenset[str] | None = None
+    #: ``evaluate``'s values at a row depend on nothing but the row's learner, the tables and
+    #: the graph's context fields (not ``ctx.obs``): on a tabulated graph, a function of the
+    #: row's learner and state, which lets a non-learning agent look them up (``FrozenValues``)
+    values_per_state: bool = False
 
     def __init__(self, graph: TaskGraph, n_learners: int) -> None:
         super().__init__()
@@ -86,6 +90,8 @@ class TabularLearner(Learner):
     groups (``self.plan``), and keeps the rows its choices read in ``ctx.values["Q"]``
     ``[B, Tc, A]`` (``action_values`` gathers them per instance).
 
+    Their values are functions of the context's fields and the tables (``values_per_state``).
+
     Args:
         graph: the task graph.
         n_learners: population size ``P``.
@@ -93,6 +99,8 @@ class TabularLearner(Learner):
         gamma: discount factor (1 for undiscounted episodic tasks).
         per_instance: tables per Task-Stack context instead of per subtask.
     """
+
+    values_per_state = True
 
     def __init__(
         self,
