@@ -48,6 +48,7 @@ from torchrl.envs import EnvBase
 
 from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.env import BatchedEnv
+from hrl_torch.ops import put
 from hrl_torch.stack import TaskStack
 
 #: the step fields of a BatchedEnv output, as observation keys (TorchRL keeps ``reward`` apart)
@@ -196,8 +197,11 @@ class HierarchicalPolicy(TensorDictModuleBase):
         executor.stack = TaskStack.from_tensors(dict(tensordict.get(STACK).items()), b)
         action, batch = self.agent.decide(domain_output(tensordict, self.obs_keys))
         tensordict.set("action", action)
-        tensordict.set(("next", STACK), TensorDict(executor.stack.tensors(), batch_size=[b]))
-        tensordict.set(TRANSITIONS, batch)
+        stack = TensorDict(executor.stack.tensors(), batch_size=[b], device=tensordict.device)
+        tensordict.set(("next", STACK), stack)
+        # the transitions are on the frame's device: written without TensorDict's device check
+        # (which would rebuild them with ``.to`` every step)
+        put(tensordict, TRANSITIONS, batch)
         return tensordict
 
 
@@ -250,6 +254,7 @@ class CollectorSource:
             self.policy,
             frames_per_batch=env.batch_size,
             total_frames=-1,
+            device=env.device,  # policy, env and frames on one device: no per-step copy
             trust_policy=True,
             use_buffers=False,  # with buffers the collector calls the policy once to probe it
             track_traj_ids=False,
