@@ -688,8 +688,7 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "collector-next-stack-not-written",
         "hrl_torch/collector.py",
-        '        tensordict.set(("next", STACK), TensorDict(executor.stack.tensors(), '
-        "batch_size=[b]))\n",
+        '        tensordict.set(("next", STACK), stack)\n',
         "",
         "the collector's policy does not write the next Task-Stack into the rollout",
         ("tests/agents/test_ship_hierarchy.py", "tests/test_device.py"),
