@@ -655,8 +655,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "value-policy-root-uniforms",
         "hrl_torch/learners/base.py",
-        "self._chooser_columns = g.chooser_depth[:, None] * self.width + torch.arange(self.width)",
-        "self._chooser_columns = 0 * g.chooser_depth[:, None] + torch.arange(self.width)",
+        "self._chooser_columns = g.chooser_depth[:, None] * self.width + slots",
+        "self._chooser_columns = 0 * g.chooser_depth[:, None] + slots",
         "the all-instances choice reads every level's choice from the root level's uniforms",
         ("tests/test_executor.py",),
     ),
