@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.ops import argmax_last
+
 Metric = Callable[[TensorDict], torch.Tensor]
 
 
@@ -211,7 +213,7 @@ def greedy_table(learner, observations: TensorDict, learner_index: int = 0) -> t
             continue
         q = learner.action_values(torch.full((n,), inst, dtype=torch.long), ctx)
         available = ctx.available[:, node]
-        choice = torch.where(available, q, -torch.inf).argmax(-1)
+        choice = argmax_last(torch.where(available, q, -torch.inf))
         state = ctx.abstract[:, node]
         first = torch.full((int(g.node_n_states[node]),), n, dtype=torch.long)
         first = first.scatter_reduce(0, state, torch.arange(n), "amin")

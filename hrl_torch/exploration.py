@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import torch
 
+from hrl_torch.ops import argmax_last
+
 _TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
 
 
@@ -68,7 +70,7 @@ def as_schedule(value: float | Schedule) -> Schedule:
 
 def masked_argmax(q: torch.Tensor, available: torch.Tensor) -> torch.Tensor:
     """Index of the largest available value per row (``q [..., A]`` -> ``[...]``)."""
-    return q.masked_fill(~available, -math.inf).argmax(-1)
+    return argmax_last(q.masked_fill(~available, -math.inf))
 
 
 def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -76,7 +78,7 @@ def uniform_choice(available: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
 
     ``u [..., A]`` independent uniforms in ``[0, 1)`` (ties have probability 0).
     """
-    return u.masked_fill(~available, -1.0).argmax(-1)
+    return argmax_last(u.masked_fill(~available, -1.0))
 
 
 def uniforms_needed(n_children: int) -> int:
@@ -115,8 +117,8 @@ class EpsilonGreedy:
         """Return ``(choice, greedy)``; a random pick that equals the greedy one counts."""
         a = q.shape[-1]
         per_child, blocked = u[..., :a], ~available
-        greedy_choice = (q + per_child * _TIE_NOISE).masked_fill(blocked, -math.inf).argmax(-1)
-        random_choice = per_child.masked_fill(blocked, -1.0).argmax(-1)
+        greedy_choice = argmax_last((q + per_child * _TIE_NOISE).masked_fill(blocked, -math.inf))
+        random_choice = argmax_last(per_child.masked_fill(blocked, -1.0))
         explore = u[..., a] < self.epsilon(step)
         choice = torch.where(explore, random_choice, greedy_choice)
         return choice, choice == greedy_choice

@@ -18,6 +18,23 @@ def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
 
 
+#: ``argmax_last`` switches to ``max(-1).indices`` from this many elements on (on the CPU)
+ARGMAX_BY_MAX = 256
+
+
+def argmax_last(x: torch.Tensor, keepdim: bool = False) -> torch.Tensor:
+    """``x.argmax(-1)``: the index of the first maximum along the last dimension.
+
+    NaN counts as the maximum; either route gives the same indices. On the CPU ``argmax`` over
+    a small last dimension is slow for many rows (313 us for ``[5120, 4, 5]``, 75 us for
+    ``[1000, 7, 5]``); ``max(-1).indices`` is 2.5-3x faster there, but costs a microsecond
+    more below ``ARGMAX_BY_MAX`` elements.
+    """
+    if x.device.type == "cpu" and x.numel() >= ARGMAX_BY_MAX:
+        return x.max(-1, keepdim=keepdim).indices
+    return x.argmax(-1, keepdim=keepdim)
+
+
 #: ``columns`` gathers through a transposed copy from this many elements of ``x`` on (CPU)
 COLUMNS_TRANSPOSED = 1 << 14
 

@@ -367,8 +367,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "uniform-choice-skips-last",
         "hrl_torch/exploration.py",
-        "random_choice = per_child.masked_fill(blocked, -1.0).argmax(-1)",
-        "random_choice = per_child.masked_fill(blocked, -1.0)[..., :-1].argmax(-1)",
+        "random_choice = argmax_last(per_child.masked_fill(blocked, -1.0))",
+        "random_choice = argmax_last(per_child.masked_fill(blocked, -1.0)[..., :-1])",
         "a random choice never picks the last available child",
         ("tests/test_exploration.py",),
     ),
@@ -992,5 +992,13 @@ MUTANTS: list[Mutant] = [
         "owner = torch.arange(learner.n_learners, device=device).repeat(n_states)",
         "the once-per-state evaluation pairs states with the wrong learners",
         ("tests/test_frozen_values.py",),
+    ),
+    Mutant(
+        "ops-argmax-last-keepdim-dropped",
+        "hrl_torch/ops.py",
+        "return x.max(-1, keepdim=keepdim).indices",
+        "return x.max(-1).indices",
+        "the fast argmax of many rows ignores keepdim (MAXQ's internal best child gathers wrong)",
+        ("tests/test_ops.py",),
     ),
 ]

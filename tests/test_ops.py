@@ -1,5 +1,7 @@
 """The hot path's small tensor helpers: both code paths of each equal the plain indexing."""
 
+import math
+
 import pytest
 import torch
 
@@ -33,3 +35,14 @@ def test_add_at_sums_repeated_indices(rows):
             for j in range(2):
                 expected[k, second[r, 0], third[r, j]] += values[k, r, j]
     assert torch.allclose(table, expected, atol=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(3, 5), (1000, 7, 5), (64, 2, 6)])  # around ARGMAX_BY_MAX
+def test_argmax_last_gives_argmax_on_ties_infinities_and_nans(shape):
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randint(0, 3, shape, generator=gen).float()  # many exact ties
+    for value, p in ((-math.inf, 0.2), (math.inf, 0.02), (math.nan, 0.02)):
+        x[torch.rand(shape, generator=gen) < p] = value
+    x[0] = -math.inf  # a row with nothing available
+    assert torch.equal(ops.argmax_last(x), x.argmax(-1))
+    assert torch.equal(ops.argmax_last(x, keepdim=True), x.argmax(-1, keepdim=True))

@@ -26,7 +26,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import discount, entries
+from hrl_torch.ops import argmax_last, discount, entries
 
 
 class MaxQLearner(TabularLearner):
@@ -93,7 +93,7 @@ class MaxQLearner(TabularLearner):
             q_ext = child_v + c
             if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
                 q_int = child_v + c_int[0]
-                best = q_int.masked_fill(unavailable, -torch.inf).argmax(-1, keepdim=True)
+                best = argmax_last(q_int.masked_fill(unavailable, -torch.inf), keepdim=True)
                 v_ext = q_ext.gather(-1, best).squeeze(-1)
                 v_int = q_int.gather(-1, best).squeeze(-1)
                 value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))

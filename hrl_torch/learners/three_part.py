@@ -35,7 +35,7 @@ from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import columns, entries
+from hrl_torch.ops import argmax_last, columns, entries
 
 
 def three_part_targets(
@@ -136,7 +136,7 @@ class ThreePartLearner(TabularLearner):
         for ids, kids, unavailable, gone, c_part, ce_part in self.groups(blocked, dead, c, ce):
             projected = torch.take(value, kids) + c_part  # Eq. 4.11
             q = projected + ce_part  # Eq. 4.7
-            best = q.masked_fill(unavailable, -torch.inf).argmax(-1, keepdim=True)
+            best = argmax_last(q.masked_fill(unavailable, -torch.inf), keepdim=True)
             for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
                 out.index_copy_(1, ids, rows.gather(-1, best).squeeze(-1).masked_fill(gone, 0.0))
             q_rows.append(q)
