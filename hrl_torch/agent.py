@@ -65,7 +65,7 @@ class FrozenValues:
         device = graph.tab_abstract.device
         states = torch.arange(n_states, device=device).repeat(learner.n_learners)
         owner = torch.arange(learner.n_learners, device=device).repeat_interleave(n_states)
-        obs = TensorDict({graph.table_key: states}, batch_size=states.shape)
+        obs = graph.table_observations.to(device)[states]  # (every field, for ``ctx.obs``)
         ctx = graph.context(obs, owner)
         learner.evaluate(ctx)
         self.values = ctx.values

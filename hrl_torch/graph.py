@@ -542,6 +542,7 @@ class TaskGraph(nn.Module):
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``
+        self.table_observations: TensorDict | None = None  # (``tabulate``'s observations)
         self.never_stuck = False  # (``tabulate`` can prove it)
         # which nodes need a call per step (defaults are constant columns)
         self._abstract_nodes = self._custom(lambda x: x.n_states > 1 or _overrides(x, "abstract"))
@@ -612,6 +613,7 @@ class TaskGraph(nn.Module):
         for name, value in tables.items():
             self.register_buffer(name, value, persistent=False)
         self._table_key = key
+        self.table_observations = observations  # every state's observation, in order
         # every subtask has an available child in every state: no push can get stuck
         composite = ~self.node_is_primitive
         self.never_stuck = bool(ctx.available.any(-1)[:, composite].all())

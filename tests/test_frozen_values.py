@@ -67,3 +67,21 @@ def test_only_a_non_learning_agent_on_a_tabulated_graph_freezes_within_its_budge
     assert agent.freeze_values(max_rows=2 * 500)
     fuel = trained("taxi-fuel", "maxq-q", 0, eval_episodes=10)  # not tabulated
     assert not fuel.evaluation_agent(fuel.eval_env, "eval-explore").freeze_values(10**6)
+
+
+def test_frozen_values_hand_the_learner_every_observation_field(monkeypatch):
+    trainer = trained("taxi", "maxq-q", 300, eval_episodes=20)
+    base = type(trainer.learner)
+
+    class ReadsTheObservation(base):  # a user's learner whose values read ctx.obs
+        def evaluate(self, ctx):
+            super().evaluate(ctx)
+            passenger = ctx.obs["passenger"].float()[:, None, None]
+            ctx.values["Q"] = ctx.values["Q"] + 0.01 * passenger * (ctx.obs["taxi_row"] == 0)[
+                :, None, None
+            ]
+
+    monkeypatch.setattr(trainer.learner, "__class__", ReadsTheObservation)
+    a, b = frozen_and_not(trainer, lambda t: t.evaluate_episodes(), monkeypatch)
+    for key in a.keys(include_nested=True, leaves_only=True):
+        assert torch.equal(a[key], b[key]), key

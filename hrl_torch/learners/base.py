@@ -37,9 +37,10 @@ class Learner(nn.Module):
 
     gamma: float = 1.0
     uses: frozenset[str] | None = None
-    #: ``evaluate``'s values at a row depend on nothing but the row's learner, the tables and
-    #: the graph's context fields (not ``ctx.obs``): on a tabulated graph, a function of the
-    #: row's learner and state, which lets a non-learning agent look them up (``FrozenValues``)
+    #: ``evaluate``'s values at a row depend on nothing but the row's learner, the tables, the
+    #: context's fields and the observation (not, e.g., on the executor's stacks): on a
+    #: tabulated graph a function of the row's learner and state, which lets a non-learning
+    #: agent look them up (``FrozenValues``)
     values_per_state: bool = False
 
     def __init__(self, graph: TaskGraph, n_learners: int) -> None:
@@ -90,7 +91,9 @@ class TabularLearner(Learner):
     groups (``self.plan``), and keeps the rows its choices read in ``ctx.values["Q"]``
     ``[B, Tc, A]`` (``action_values`` gathers them per instance).
 
-    Their values are functions of the context's fields and the tables (``values_per_state``).
+    Their values are functions of the context's fields and the tables (``values_per_state``; a
+    subclass whose ``evaluate`` reads more than the row's learner and observation sets it
+    False).
 
     Args:
         graph: the task graph.
