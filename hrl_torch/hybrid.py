@@ -29,7 +29,7 @@ from hrl_torch.exploration import Exploration, Greedy, uniform_choice
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg import HPGRLLearner
-from hrl_torch.rng import choosing_levels
+from hrl_torch.rng import LevelDraws
 
 
 class TriggeredEpsilon(nn.Module):
@@ -218,29 +218,19 @@ class HybridPolicy:
         self.exploration = exploration
         self.greedy = evaluate
         self.rng = rng
-        self.width = learner.graph.max_children + 4
-        self._columns = choosing_levels(learner.graph, self.width)
-        self._draw: int | None = None
+        self.draws = LevelDraws(rng, learner.graph, learner.graph.max_children + 4)
 
     def new_step(self) -> None:
-        """Take this step's draw (uniforms ``[B, levels - 1, A + 4]``, read when asked)."""
-        self._draw = self.rng.reserve(1)
-
-    @property
-    def _u(self) -> torch.Tensor:
-        """This step's uniforms of every row ``[B, levels - 1, A + 4]``."""
-        width = self.learner.graph.max_levels * self.width
-        return self.rng.uniform(width, counter=self._draw, columns=self._columns)
+        """Take this step's draw (``A + 4`` uniforms per level, read when asked)."""
+        self.draws.new_step()
 
     def select(self, inst, ctx: StepContext, available, step: int, push: int) -> Choice:
         """The choices of the ``push``-th push of the step."""
-        return self._choose(inst, ctx, available, step, self._u[:, push])
+        return self._choose(inst, ctx, available, step, self.draws.level(push))
 
     def select_rows(self, inst, ctx: StepContext, available, step: int, push: int, rows):
         """``select`` for the batch rows ``rows [R]`` only (their numbers alone are drawn)."""
-        width = self.learner.graph.max_levels * self.width
-        u = self.rng.uniform_rows(width, self._draw, rows, self._columns[push])
-        return self._choose(inst, ctx, available, step, u, rows)
+        return self._choose(inst, ctx, available, step, self.draws.level_rows(push, rows), rows)
 
     def _choose(self, inst, ctx, available, step, u, rows=None) -> Choice:
         """The choices of instances ``inst`` (at batch rows ``rows``; all rows if ``None``)."""

@@ -36,6 +36,16 @@ def _mix32_int(x: int) -> int:
     return x ^ (x >> 16)
 
 
+def _draw_key(counter: int) -> int:
+    """The hash key of draw number ``counter`` (its columns' keys are ``mix(j + key)``)."""
+    return _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
+
+
+def _to_uniform(bits: torch.Tensor) -> torch.Tensor:
+    """32-bit integers to float32 uniforms in ``[0, 1)`` (their top 24 bits)."""
+    return (bits >> 8).to(torch.float32) * (1.0 / 16777216.0)
+
+
 class BatchRNG:
     """Reproducible uniform numbers for ``B = P * E`` rows, one independent stream per row.
 
@@ -81,21 +91,23 @@ class BatchRNG:
         """Number of rows ``B``."""
         return self._row_key.shape[0]
 
-    def _bits(self, extra: int, first: int, k: int = 1, cols=None) -> torch.Tensor:
+    def _bits(self, extra: int, first: int, k: int = 1, cols=None, row_key=None) -> torch.Tensor:
         """32-bit integers ``[k, B]`` or ``[k, B, C]``: draws ``first .. first + k - 1``.
 
         ``C`` columns: ``cols`` (a list of column numbers of a draw of width ``extra``; a
-        column's numbers do not depend on the width), else all ``extra``.
+        column's numbers do not depend on the width), else all ``extra``. ``row_key``: the
+        keys of some rows only (default: every row's).
         """
-        bases = [_mix32_int(c * 0x9E3779B1 + 0x7F4A7C15) for c in range(first, first + k)]
+        row_key = self._row_key if row_key is None else row_key
+        bases = [_draw_key(c) for c in range(first, first + k)]
         if extra == 0:
             keys = torch.tensor(bases, dtype=torch.int64, device=self.device)
-            return mix32(self._row_key[None, :] ^ keys[:, None])
+            return mix32(row_key[None, :] ^ keys[:, None])
         # the column keys are a handful of numbers: hashed in Python, one tensor
         cols = range(extra) if cols is None else cols
         keys = [[_mix32_int(j + base) for j in cols] for base in bases]
         keys = torch.tensor(keys, dtype=torch.int64, device=self.device)
-        return mix32(self._row_key[None, :, None] ^ keys[:, None, :])
+        return mix32(row_key[None, :, None] ^ keys[:, None, :])
 
     def uniform(
         self, extra: int = 0, counter: int | None = None, columns: torch.Tensor | None = None
@@ -133,7 +145,7 @@ class BatchRNG:
         needed = None if columns is None else sorted(set(columns.reshape(-1).tolist()))
         per_draw = self.batch_size * max(extra if needed is None else len(needed), 1)
         k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
-        u = (self._bits(extra, first, k, needed) >> 8).to(torch.float32) * (1.0 / 16777216.0)
+        u = _to_uniform(self._bits(extra, first, k, needed))
         if needed is None:
             return u
         where = torch.tensor([needed.index(c) for c in columns.reshape(-1).tolist()])
@@ -147,12 +159,9 @@ class BatchRNG:
         ``[R, *columns.shape]``, what ``uniform(extra, counter, columns)[rows]`` gives,
         computing only those numbers (for large batches of which few rows need a draw).
         """
-        base = _mix32_int(counter * 0x9E3779B1 + 0x7F4A7C15)
-        cols = columns.reshape(-1).tolist()
-        keys = torch.tensor([_mix32_int(j + base) for j in cols], device=self.device)
-        bits = mix32(self._row_key.index_select(0, rows)[:, None] ^ keys)
-        u = (bits >> 8).to(torch.float32) * (1.0 / 16777216.0)
-        return u.view(rows.shape[0], *columns.shape)
+        row_key = self._row_key.index_select(0, rows)
+        bits = self._bits(extra, counter, 1, columns.reshape(-1).tolist(), row_key)
+        return _to_uniform(bits).view(rows.shape[0], *columns.shape)
 
     def reserve(self, n: int) -> int:
         """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
@@ -213,3 +222,39 @@ def choosing_levels(graph, width: int) -> torch.Tensor:
     """
     levels = max(graph.max_levels - 1, 1)
     return torch.arange(levels)[:, None] * width + torch.arange(width)
+
+
+class LevelDraws:
+    """A policy's random numbers: one draw per step, ``per_level`` uniforms per stack level.
+
+    A choice at stack level ``l`` reads block ``l`` of the step's draw, so a row's numbers
+    never depend on what other rows do. Only the levels that can choose are read
+    (``choosing_levels``), and each read computes only what it returns.
+
+    Args:
+        rng: the rows' streams.
+        graph: the task graph (its ``max_levels``).
+        per_level: uniforms per level.
+    """
+
+    def __init__(self, rng: BatchRNG, graph, per_level: int) -> None:
+        self.rng = rng
+        self.width = graph.max_levels * per_level  # of the whole draw
+        self.levels = choosing_levels(graph, per_level)  # [levels - 1, per_level]
+        self.counter: int | None = None
+
+    def new_step(self) -> None:
+        """Take this step's draw."""
+        self.counter = self.rng.reserve(1)
+
+    def columns(self, columns: torch.Tensor) -> torch.Tensor:
+        """This step's ``columns`` (a fixed tensor of any shape) of every row."""
+        return self.rng.uniform(self.width, counter=self.counter, columns=columns)
+
+    def level(self, level: int) -> torch.Tensor:
+        """Every row's block of ``level`` ``[B, per_level]``."""
+        return self.columns(self.levels)[:, level]
+
+    def level_rows(self, level: int, rows: torch.Tensor) -> torch.Tensor:
+        """The block of ``level`` of the batch rows ``rows [R]`` only ``[R, per_level]``."""
+        return self.rng.uniform_rows(self.width, self.counter, rows, self.levels[level])

@@ -662,9 +662,9 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "value-policy-stale-choices",
-        "hrl_torch/learners/base.py",
-        "        self._draw = self.rng.reserve(1)\n",
-        "        self._draw = self._draw or self.rng.reserve(1)\n",
+        "hrl_torch/rng.py",
+        "        self.counter = self.rng.reserve(1)\n",
+        "        self.counter = self.counter or self.rng.reserve(1)\n",
         "the choices read the first step's random numbers at every step",
         ("tests/test_executor.py",),
     ),
@@ -956,8 +956,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "rng-rows-draw-first-rows",
         "hrl_torch/rng.py",
-        "bits = mix32(self._row_key.index_select(0, rows)[:, None] ^ keys)",
-        "bits = mix32(self._row_key[: rows.shape[0]][:, None] ^ keys)",
+        "row_key = self._row_key.index_select(0, rows)",
+        "row_key = self._row_key[: rows.shape[0]]",
         "a draw for some rows reads the first rows' streams",
         ("tests/test_rng.py", EXECUTOR),
     ),

@@ -22,7 +22,7 @@ from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_n
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import add_at, at_rows, lookup
-from hrl_torch.rng import BatchRNG, choosing_levels
+from hrl_torch.rng import BatchRNG, LevelDraws
 from hrl_torch.tables import EvalPlan, TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
@@ -275,21 +275,14 @@ class ValuePolicy:
         g = learner.graph
         self.width = uniforms_needed(g.max_children)
         self.all_at_once = hasattr(learner, "instance_action_values")
-        # one step's draw is a block of uniforms per level that can choose (all but the
-        # deepest); choosers read their level's block
-        self._level_columns = choosing_levels(g, self.width)
+        self.draws = LevelDraws(rng, g, self.width)
+        # every chooser reads its level's block
         slots = torch.arange(self.width, device=g.chooser_depth.device)
         self._chooser_columns = g.chooser_depth[:, None] * self.width + slots
-        self._draw: int | None = None
 
     def new_step(self) -> None:
         """Take this step's draw (read by the choices)."""
-        self._draw = self.rng.reserve(1)
-
-    def _uniforms(self, columns: torch.Tensor) -> torch.Tensor:
-        """This step's uniforms ``[B, *columns.shape]`` (columns of one draw)."""
-        width = self.learner.graph.max_levels * self.width
-        return self.rng.uniform(width, counter=self._draw, columns=columns)
+        self.draws.new_step()
 
     def select(
         self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
@@ -298,8 +291,7 @@ class ValuePolicy:
         q = self.learner.action_values(inst, ctx)
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
-        u = self._uniforms(self._level_columns)[:, push]
-        return Choice(*self.exploration.select(q, available, u, step))
+        return Choice(*self.exploration.select(q, available, self.draws.level(push), step))
 
     def select_rows(self, inst, ctx: StepContext, available, step: int, push: int, rows):
         """``select`` for the batch rows ``rows [R]`` only (``inst``, ``available`` theirs).
@@ -309,8 +301,7 @@ class ValuePolicy:
         q = self.learner.action_values(inst, ctx, rows)
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
-        width = self.learner.graph.max_levels * self.width
-        u = self.rng.uniform_rows(width, self._draw, rows, self._level_columns[push])
+        u = self.draws.level_rows(push, rows)
         return Choice(*self.exploration.select(q, available, u, step))
 
     def choose_all(self, ctx: StepContext, step: int) -> Choice | None:
@@ -330,5 +321,5 @@ class ValuePolicy:
         if self.choice_cost is not None:
             q = q - self.choice_cost.index_select(0, g.chooser_node)
         available = ctx.available.index_select(1, g.chooser_node)
-        u = self._uniforms(self._chooser_columns)
+        u = self.draws.columns(self._chooser_columns)
         return Choice(*self.exploration.select(q, available, u, step))

@@ -50,7 +50,7 @@ from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.learners.base import Learner
 from hrl_torch.ops import lookup
 from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
-from hrl_torch.rng import choosing_levels
+from hrl_torch.rng import LevelDraws
 from hrl_torch.tables import TableBank
 from hrl_torch.tiles import TileCoder
 from hrl_torch.validate import check_fraction, check_positive, check_step_size
@@ -486,23 +486,20 @@ class PGPolicy:
         self.learner = learner
         self.rng = rng
         self.greedy = greedy
-        self._columns = choosing_levels(learner.graph, 3)
-        self._draw: int | None = None
+        self.draws = LevelDraws(rng, learner.graph, 3)
 
     def new_step(self) -> None:
-        """Take this step's draw (uniforms ``[B, levels - 1, 3]``, read when asked)."""
-        self._draw = self.rng.reserve(1)
+        """Take this step's draw (3 uniforms per level, read when asked)."""
+        self.draws.new_step()
 
     def select(self, inst, ctx, available, step, push) -> Choice:
         """The choices of the ``push``-th push of the step."""
-        width = self.learner.graph.max_levels * 3
-        u = self.rng.uniform(width, counter=self._draw, columns=self._columns)[:, push]
+        u = self.draws.level(push)
         return self.learner.select(inst, ctx, available, u, self.greedy, step)
 
     def select_rows(self, inst, ctx, available, step, push, rows) -> Choice:
         """``select`` for the batch rows ``rows [R]`` only (their numbers alone are drawn)."""
-        width = self.learner.graph.max_levels * 3
-        u = self.rng.uniform_rows(width, self._draw, rows, self._columns[push])
+        u = self.draws.level_rows(push, rows)
         return self.learner.select(inst, ctx, available, u, self.greedy, step, rows)
 
 
