@@ -400,23 +400,18 @@ class HierarchicalExecutor:
             policy.select_rows((inst1 - 1).clamp_min(0), ctx, available, step, level, rows)
         )
         child = torch.take(g.inst_children_1, inst1 * g.max_children + part.child)
-        full = torch.zeros_like(col)
-        out = Choice(
-            full.index_copy(0, rows, part.child),
-            torch.ones_like(chooses).index_copy(0, rows, part.greedy),
-        )
+
+        def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
+            """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
+            out = values.new_full((col.shape[0], *values.shape[1:]), fill)
+            return out.index_copy(0, rows, values)
+
+        out = Choice(spread(part.child), spread(part.greedy, True))
         if part.action is not None:
-            out.action = torch.zeros(
-                col.shape[0], part.action.shape[1], device=col.device
-            ).index_copy(0, rows, part.action)
+            out.action = spread(part.action)
         if part.score_index is not None:
-            out.score_index = torch.zeros(
-                col.shape[0], part.score_index.shape[1], dtype=torch.long, device=col.device
-            ).index_copy(0, rows, part.score_index)
-            out.score_value = torch.zeros(
-                col.shape[0], part.score_value.shape[1], device=col.device
-            ).index_copy(0, rows, part.score_value)
-        return out, full.index_copy(0, rows, child)
+            out.score_index, out.score_value = spread(part.score_index), spread(part.score_value)
+        return out, spread(child)
 
     def _available_flat(self, ctx: StepContext) -> torch.Tensor:
         """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""

@@ -908,8 +908,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-compact-children-unscattered",
         "hrl_torch/executor.py",
-        "        return out, full.index_copy(0, rows, child)",
-        "        return out, full.index_copy(0, rows.flip(0), child)",
+        "            return out.index_copy(0, rows, values)",
+        "            return out.index_copy(0, rows.flip(0), values)",
         "choices made for the choosing rows only are scattered back to the wrong rows",
         (EXECUTOR,),
     ),
