@@ -176,12 +176,7 @@ class HierarchicalExecutor:
         uses: frozenset[str] | None = None,
         count_stats: bool = True,
     ) -> None:
-        unknown = set(uses or ()) - self.OPTIONAL
-        if unknown:
-            raise ValueError(
-                f"unknown transition keys {sorted(unknown)}; optional ones: {sorted(self.OPTIONAL)}"
-            )
-        self.uses = self.OPTIONAL if uses is None else frozenset(uses)
+        self.uses = self._checked_uses(uses)
         self.graph = graph
         self.config = config or ExecutorConfig()
         self.gamma = float(gamma)
@@ -204,12 +199,7 @@ class HierarchicalExecutor:
         )
         self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
         self._row_base = self.rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
-        # the descent (``_descend``): row b's blocks of choices, codes and greedy flags
-        ic, codes = graph.n_choosers, graph.n_choosers + graph.n_instances + 1
-        self._chooser_base = (torch.arange(ic, **long) * graph.max_children)[None, :]
-        self._leaf_codes = torch.arange(ic, codes, **long).expand(batch_size, -1)
-        self._code_base = self.rows * codes
-        self._greedy_base = self.rows[:, None] * (ic + 1)
+        self._init_descent()
         # the per-level sums a new child restarts (the discounted sums are the plain ones when
         # gamma is 1; the internal ones stay 0 without shaping rewards)
         self._accumulators = ["steps", "time", "reward"]
@@ -219,11 +209,7 @@ class HierarchicalExecutor:
             self._accumulators.append("internal")
         self._no_reward = torch.zeros(batch_size, self.depth, device=device)
         self._spans, self._span_code_1 = _level_spans(self.depth, graph.inst_depth_1)
-        # the deepest level where a node with memory and features runs (-1: none)
-        memory_inst = torch.isin(
-            graph.inst_node, torch.tensor(graph.memory_feature_nodes, device=device)
-        )
-        self._memory_depth = int(graph.inst_depth[memory_inst].max()) if memory_inst.any() else -1
+        self._memory_depth = _memory_feature_depth(graph)
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
         self._acting: torch.Tensor | None = None  # agent rows acting at this step (observe)
@@ -235,6 +221,25 @@ class HierarchicalExecutor:
         self.skipped_steps = torch.zeros(self.n_learners, device=device)
         #: levels ``[B, D]`` whose node was invoked by the last ``act``
         self.invoked = torch.zeros_like(self.stack.inst, dtype=torch.bool)
+
+    @classmethod
+    def _checked_uses(cls, uses: frozenset[str] | None) -> frozenset[str]:
+        """``uses`` (``None``: every optional key); an unknown key is a ``ValueError``."""
+        unknown = set(uses or ()) - cls.OPTIONAL
+        if unknown:
+            raise ValueError(
+                f"unknown transition keys {sorted(unknown)}; optional ones: {sorted(cls.OPTIONAL)}"
+            )
+        return cls.OPTIONAL if uses is None else frozenset(uses)
+
+    def _init_descent(self) -> None:
+        """The descent's index bases (``_descend``): each row's block of choices, codes, flags."""
+        g, long = self.graph, dict(dtype=torch.long, device=self.device)
+        ic, codes = g.n_choosers, g.n_choosers + g.n_instances + 1
+        self._chooser_base = (torch.arange(ic, **long) * g.max_children)[None, :]
+        self._leaf_codes = torch.arange(ic, codes, **long).expand(self.batch_size, -1)
+        self._code_base = self.rows * codes
+        self._greedy_base = self.rows[:, None] * (ic + 1)
 
     @property
     def stack(self) -> TaskStack:
@@ -753,6 +758,14 @@ class HierarchicalExecutor:
         self.invoked = invoked.to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _memory_feature_depth(graph: TaskGraph) -> int:
+    """The deepest level where a node with invocation memory and features runs (-1: none)."""
+    device = graph.inst_node.device
+    nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long, device=device)
+    memory_inst = torch.isin(graph.inst_node, nodes)
+    return int(graph.inst_depth[memory_inst].max()) if memory_inst.any() else -1
 
 
 def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -639,31 +639,14 @@ class TaskGraph(nn.Module):
         if learner is None:
             learner = torch.zeros(b, dtype=torch.long, device=device)
         if self._table_key is not None:  # a tabulated graph: every field is a lookup
-            s = obs[self._table_key]
-            features = lookup(self.tab_features, s) if self.max_features else None
-            return StepContext(
-                obs,
-                learner,
-                lookup(self.tab_abstract, s),
-                lookup(self.tab_terminated, s),
-                lookup(self.tab_blocked, s),
-                lookup(self.tab_available, s),
-                features,
-                table_row=s,
-            )
+            return self._tabulated_context(obs, learner)
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         abstract = self._node_columns(
             self._abstract_nodes, torch.long, 0, b, device, lambda k: self._abstract_of(obs, k)
         )
         if self.check_ranges:
-            bad = (abstract < 0) | (abstract >= self.node_n_states)
-            if bool(bad.any()):
-                row, col = (int(v) for v in bad.nonzero()[0])
-                raise GraphError(
-                    f"{self.names[col]!r}.abstract returned {int(abstract[row, col])}, outside "
-                    f"[0, {self.nodes[col].n_states}) (env row {row})"
-                )
+            self._check_abstract_ranges(abstract)
         terminated = self._node_columns(
             self._terminating_nodes,
             torch.bool,
@@ -681,14 +664,7 @@ class TaskGraph(nn.Module):
             lambda k: self.nodes[k].initiable(obs),
         )
         blocked = terminated & ~self.node_event
-        child_ok = initiable & ~blocked  # a child that would end at once is not available
-        available = columns(child_ok, self.node_children_0) & self.child_valid
-        for k, x in enumerate(self.nodes):
-            if x.is_primitive:
-                continue
-            mask = x.child_mask(obs)
-            if mask is not None:
-                available[:, k, : mask.shape[1]] &= mask.bool()
+        available = self._available(obs, initiable & ~blocked)
         features = None
         if self.feature_nodes:
             features = torch.zeros(b, self.n_nodes, self.max_features, device=device)
@@ -696,6 +672,46 @@ class TaskGraph(nn.Module):
                 node = self.nodes[k]
                 features[:, k, : node.n_features] = self._call(node.features, obs, memory, k)
         return StepContext(obs, learner, abstract, terminated, blocked, available, features)
+
+    def _tabulated_context(self, obs: TensorDict, learner: torch.Tensor) -> StepContext:
+        """``context`` of a tabulated graph: every field looked up by the state."""
+        s = obs[self._table_key]
+        features = lookup(self.tab_features, s) if self.max_features else None
+        return StepContext(
+            obs,
+            learner,
+            lookup(self.tab_abstract, s),
+            lookup(self.tab_terminated, s),
+            lookup(self.tab_blocked, s),
+            lookup(self.tab_available, s),
+            features,
+            table_row=s,
+        )
+
+    def _check_abstract_ranges(self, abstract: torch.Tensor) -> None:
+        """Every abstract state inside its node's ``[0, n_states)``, else a ``GraphError``."""
+        bad = (abstract < 0) | (abstract >= self.node_n_states)
+        if bool(bad.any()):
+            row, col = (int(v) for v in bad.nonzero()[0])
+            raise GraphError(
+                f"{self.names[col]!r}.abstract returned {int(abstract[row, col])}, outside "
+                f"[0, {self.nodes[col].n_states}) (env row {row})"
+            )
+
+    def _available(self, obs: TensorDict, child_ok: torch.Tensor) -> torch.Tensor:
+        """``[B, n_nodes, max_children]``: the children each node may start.
+
+        ``child_ok [B, N]``: nodes that can start (one that would end at once cannot); each
+        node's ``child_mask`` narrows its children further.
+        """
+        available = columns(child_ok, self.node_children_0) & self.child_valid
+        for k, x in enumerate(self.nodes):
+            if x.is_primitive:
+                continue
+            mask = x.child_mask(obs)
+            if mask is not None:
+                available[:, k, : mask.shape[1]] &= mask.bool()
+        return available
 
     @staticmethod
     def _node_columns(nodes, dtype, default, b, device, value_of) -> torch.Tensor:

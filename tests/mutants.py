@@ -428,8 +428,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "graph-terminated-child-available",
         "hrl_torch/graph.py",
-        "child_ok = initiable & ~blocked  # a child that would end at once is not available",
-        "child_ok = initiable",
+        "available = self._available(obs, initiable & ~blocked)",
+        "available = self._available(obs, initiable)",
         "a child already terminated can be chosen",
         ("tests/test_graph.py",),
     ),
@@ -647,8 +647,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tabulated-terminated-blocked-swapped",
         "hrl_torch/graph.py",
-        "lookup(self.tab_terminated, s),\n                lookup(self.tab_blocked, s),",
-        "lookup(self.tab_blocked, s),\n                lookup(self.tab_terminated, s),",
+        "lookup(self.tab_terminated, s),\n            lookup(self.tab_blocked, s),",
+        "lookup(self.tab_blocked, s),\n            lookup(self.tab_terminated, s),",
         "a tabulated graph's lookups return blocked as terminated and vice versa",
         ("tests/test_graph.py",),
     ),
