@@ -219,6 +219,32 @@ def default_metric(domain: DomainSpec) -> str:
     return "final_eval_throughput" if domain.make_evaluator is not None else "final_eval_return"
 
 
+def _checked_request(domain_name, algo, grid, seeds, steps, metric):
+    """``run_sweep``'s arguments checked before Ray starts or a file is written.
+
+    Returns ``(domain, seeds as a list, metric, the request as recorded, configurations)``.
+    """
+    from hrl_torch import registry
+
+    try:
+        domain = registry.get(domain_name)
+        check_choice(domain, algo, "torch")
+    except KeyError as err:
+        raise ValueError(err.args[0]) from None
+    seeds = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
+    if not seeds:
+        raise ValueError("a sweep needs at least one seed")
+    if steps is not None and "steps" in grid:
+        raise ValueError("steps is both swept (--grid steps=...) and fixed (--steps)")
+    metric = metric or default_metric(domain)
+    request = {"domain": domain_name, "algo": algo, "grid": grid, "seeds": seeds, "steps": steps}
+    request = json.loads(json.dumps({**request, "metric": metric}))
+    configs = configurations(grid)
+    _check_configurations(domain.algos[algo], configs)
+    check_domain_env(domain, algo)
+    return domain, seeds, metric, request, configs
+
+
 def run_sweep(
     domain_name: str,
     algo: str,
@@ -258,24 +284,9 @@ def run_sweep(
         ValueError: a user error (unknown domain, algorithm or key, bad value, the folder,
             Ray missing), before Ray starts; or no connection to the cluster at ``address``.
     """
-    from hrl_torch import registry
-
-    try:
-        domain = registry.get(domain_name)
-        check_choice(domain, algo, "torch")
-    except KeyError as err:
-        raise ValueError(err.args[0]) from None
-    seeds = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
-    if not seeds:
-        raise ValueError("a sweep needs at least one seed")
-    if steps is not None and "steps" in grid:
-        raise ValueError("steps is both swept (--grid steps=...) and fixed (--steps)")
-    metric = metric or default_metric(domain)
-    request = {"domain": domain_name, "algo": algo, "grid": grid, "seeds": seeds, "steps": steps}
-    request = json.loads(json.dumps({**request, "metric": metric}))
-    configs = configurations(grid)
-    _check_configurations(domain.algos[algo], configs)  # before Ray starts or a file is written
-    check_domain_env(domain, algo)
+    domain, seeds, metric, request, configs = _checked_request(
+        domain_name, algo, grid, seeds, steps, metric
+    )
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
 

@@ -111,17 +111,26 @@ def joint_chain(
                 stacks[x] = agent.executor.stack.inst[k * n : (k + 1) * n]
         nexts.append((ids, torch.tensor(targets).view(len(frontier), n_out)))
         frontier = list(range(before, len(index)))
-    x = len(index)
-    chain_next = torch.zeros(x, n_out, dtype=torch.long)
+    return _assembled_chain(env_states, nexts, rewards, prob, start, s0)
+
+
+def _assembled_chain(env_states: list, nexts: list, rewards: list, prob, start, s0) -> JointChain:
+    """The chain's tensors from ``joint_chain``'s records.
+
+    Per explored frontier, its chain states' ids with their next chain states ``[m, K]``
+    (``nexts``) or rewards (``rewards``); the chain starts in the env states ``s0`` (the
+    first ids) as ``start`` weighs them.
+    """
+    x = len(env_states)
+    chain_next = torch.zeros(x, prob.shape[0], dtype=torch.long)
     chain_reward = torch.zeros(x, dtype=torch.float64)
     for ids, t in nexts:
         chain_next[ids] = t
     for ids, r in rewards:
         chain_reward[ids] = r.double()
-    env_state = torch.tensor(env_states)
     first = torch.zeros(x, dtype=torch.float64)
     first[: len(s0)] = start[s0].double() / start[s0].sum()
-    return JointChain(chain_next, prob.double(), chain_reward, first, env_state)
+    return JointChain(chain_next, prob.double(), chain_reward, first, torch.tensor(env_states))
 
 
 def chain_gain(chain: JointChain, tol: float = 1e-12, max_iter: int = 1_000_000) -> float:
