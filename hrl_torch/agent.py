@@ -162,16 +162,22 @@ class HierarchicalAgent:
         self.batch: TensorDict | None = None
         self.frozen: FrozenValues | None = None
 
-    def freeze_values(self, max_rows: int) -> bool:
+    #: freeze only when evaluating every state costs at most this share of evaluating the
+    #: rows at every step of the run (the one-off evaluation costs about a step over that
+    #: many rows)
+    FREEZE_SHARE = 1 / 8
+
+    def freeze_values(self, steps: int) -> bool:
         """Evaluate the learner's values at every state once and look them up from now on.
 
-        Only for an agent that does not learn, on a tabulated graph whose learner allows it
-        (``FrozenValues``), and when the states of all learners number at most ``max_rows``
-        (the one-off evaluation costs about as much as a step over that many rows). Returns
-        whether it did; the tables must not change while the agent uses the values.
+        For a run of at most ``steps`` steps of an agent that does not learn (a greedy
+        evaluation), on a tabulated graph whose learner allows it (``FrozenValues``), when
+        the states of all learners number at most ``FREEZE_SHARE`` of rows x ``steps``.
+        Returns whether it did; the tables must not change while the agent uses the values.
         """
         if self.learn:
             raise RuntimeError("a learning agent cannot freeze its values")
+        max_rows = int(self.executor.batch_size * steps * self.FREEZE_SHARE)
         self.frozen = FrozenValues.build(self.graph, self.learner, max_rows)
         return self.frozen is not None
 

@@ -89,7 +89,7 @@ class ThroughputEvaluator:
             env.rng.load_state_dict({"counter": 0})
         agent = trainer.evaluation_agent(env, "eval-explore")
         n_steps = self.max_steps if self.horizon_time else self.burn_in + self.horizon
-        agent.freeze_values(max_rows=env.batch_size * n_steps // 8)  # (as Trainer.evaluate)
+        agent.freeze_values(n_steps)  # the tables are frozen: values per state once
         action = agent.start(env.reset())
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far

@@ -320,9 +320,7 @@ class Trainer:
         if hasattr(env, "rng"):
             env.rng.load_state_dict({"counter": 0})
         agent = self.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
-        # the tables are frozen: per-state values once, if that costs less than an eighth of
-        # what evaluating them per step could
-        agent.freeze_values(max_rows=env.batch_size * cfg.eval_max_steps // 8)
+        agent.freeze_values(cfg.eval_max_steps)  # the tables are frozen: values per state once
         start = env.reset()
         action = agent.start(start)
         episodes = _EvalEpisodes(env.batch_size, env.device)

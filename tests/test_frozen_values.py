@@ -27,13 +27,13 @@ def frozen_and_not(trainer, evaluate, monkeypatch):
     """``evaluate(trainer)`` with the values frozen, then evaluated per step."""
     frozen = []
 
-    def spy(self, max_rows):
-        frozen.append(FREEZE(self, max_rows))
+    def spy(self, steps):
+        frozen.append(FREEZE(self, steps))
         return frozen[-1]
 
     monkeypatch.setattr(HierarchicalAgent, "freeze_values", spy)
     with_lookup = evaluate(trainer)
-    monkeypatch.setattr(HierarchicalAgent, "freeze_values", lambda self, max_rows: False)
+    monkeypatch.setattr(HierarchicalAgent, "freeze_values", lambda self, steps: False)
     per_step = evaluate(trainer)
     assert frozen == [True]
     return with_lookup, per_step
@@ -61,10 +61,11 @@ def test_a_continuing_evaluation_with_frozen_values_measures_the_same(monkeypatc
 def test_only_a_non_learning_agent_on_a_tabulated_graph_freezes_within_its_budget():
     taxi = trained("taxi", "maxq-q", 0, eval_episodes=10)
     with pytest.raises(RuntimeError, match="learning agent"):
-        taxi.agent.freeze_values(max_rows=10**6)
+        taxi.agent.freeze_values(10**6)
     agent = taxi.evaluation_agent(taxi.eval_env, "eval-explore")
-    assert not agent.freeze_values(max_rows=2 * 500 - 1)  # 2 learners x 500 states
-    assert agent.freeze_values(max_rows=2 * 500)
+    # 2 learners x 500 states against an eighth of 20 rows x steps
+    assert not agent.freeze_values(399)
+    assert agent.freeze_values(400)
     fuel = trained("taxi-fuel", "maxq-q", 0, eval_episodes=10)  # not tabulated
     assert not fuel.evaluation_agent(fuel.eval_env, "eval-explore").freeze_values(10**6)
 
