@@ -44,6 +44,19 @@ def run(repo: Path, out: Path, episodes: int, seeds: int) -> dict:
     return json.loads((out / "hybrid.json").read_text())
 
 
+def gate_successes(result: dict) -> str:
+    """Gate successes per 1000 episodes in the last block, ``mean (min-max)`` over seeds.
+
+    The figure script's table column, from its ``hybrid.json``.
+    """
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from fig_5_7_to_5_12_ship import _stat
+
+    curves = result["curves"]
+    last = min(result["episodes_per_seed"]) // curves["episodes_per_block"] - 1
+    return _stat(curves["gate_successes"], 0, last)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--reference", default="1ce5127", help="commit to compare against")
@@ -74,12 +87,16 @@ def main() -> None:
     ).stdout.strip()
     print(f"# Ship hybrid, full protocol ({args.seeds} seeds x {args.episodes:,} episodes)\n")
     print(f"This checkout: `{head}`; load average at the end {os.getloadavg()}.\n")
-    print("| code | wall s | env steps | env steps/s | episodes per seed (min) |")
-    print("|---|---:|---:|---:|---:|")
+    print(
+        "| code | wall s | env steps | env steps/s | episodes per seed (min) "
+        "| gate successes, last 1000 episodes |"
+    )
+    print("|---|---:|---:|---:|---:|---|")
     for name, r in rows:
         print(
             f"| {name} | {r['wall_seconds']:.0f} | {r['env_steps']:,} | "
-            f"{r['env_steps_per_second']:,.0f} | {min(r['episodes_per_seed']):,} |"
+            f"{r['env_steps_per_second']:,.0f} | {min(r['episodes_per_seed']):,} | "
+            f"{gate_successes(r)} |"
         )
     (_, old), (_, new) = rows
     print(
