@@ -32,6 +32,20 @@ from hrl_torch.rng import BatchRNG
 from hrl_torch.runlog import RunLogger
 
 
+def warn_cpu_threads(device) -> None:
+    """Warn when torch runs this CPU hot path on more than one thread.
+
+    A step is many small ops; on two threads with the other core busy, a taxi step at 10 x 512
+    measured 9-75x slower (docs/design.md#threads). The CLI sets one thread itself.
+    """
+    if torch.device(device).type == "cpu" and torch.get_num_threads() > 1:
+        warnings.warn(
+            f"torch uses {torch.get_num_threads()} threads; the batched hot path runs much "
+            "faster on one: call torch.set_num_threads(1) before training",
+            stacklevel=3,
+        )
+
+
 @dataclass
 class TrainConfig:
     """Training options.
@@ -121,6 +135,7 @@ class Trainer:
         multiagent: MultiAgentConfig | None = None,
     ) -> None:
         self.env, self.graph, self.learner = env, graph, learner
+        warn_cpu_threads(env.device)
         self.collector = collector
         self._source = None  # the collector path's frames (created at the first step)
         self._steps = None

@@ -1,6 +1,7 @@
 """The device option end to end, and the collector path from the CLI."""
 
 import json
+import warnings
 
 import pytest
 import torch
@@ -56,3 +57,18 @@ def test_the_cli_trains_through_the_collector(tmp_path):
     direct, collected = _tables_after(100), _tables_after(100, collector=True)
     for key, value in direct[1].items():
         assert torch.equal(value, collected[1][key]), key
+
+
+def test_a_cpu_trainer_on_more_than_one_thread_warns_and_one_thread_does_not():
+    opts = RunOptions(seeds=[0], envs_per_learner=2, progress=False, tensorboard=False)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with pytest.warns(UserWarning, match=r"torch.set_num_threads\(1\)"):
+            build_trainer(registry.get("taxi"), "maxq-q", opts)
+        torch.set_num_threads(1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            build_trainer(registry.get("taxi"), "maxq-q", opts)
+    finally:
+        torch.set_num_threads(before)
