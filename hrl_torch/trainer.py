@@ -35,13 +35,15 @@ from hrl_torch.runlog import RunLogger
 def warn_cpu_threads(device) -> None:
     """Warn when torch runs this CPU hot path on more than one thread.
 
-    A step is many small ops; on two threads with the other core busy, a taxi step at 10 x 512
-    measured 9-75x slower (docs/design.md#threads). The CLI sets one thread itself.
+    A step is many small ops. On an idle machine two threads were no slower, but with another
+    process on a core a taxi step at 10 x 512 was 9-75x slower (docs/design.md#threads). The
+    CLI sets one thread itself.
     """
     if torch.device(device).type == "cpu" and torch.get_num_threads() > 1:
         warnings.warn(
-            f"torch uses {torch.get_num_threads()} threads; the batched hot path runs much "
-            "faster on one: call torch.set_num_threads(1) before training",
+            f"torch uses {torch.get_num_threads()} threads: the batched hot path (many small "
+            "ops) slows down many times over when another process shares a core; call "
+            "torch.set_num_threads(1) before training",
             stacklevel=3,
         )
 
