@@ -141,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     An interrupted run (SIGINT, SIGTERM) exits with 130 / 143 after writing its checkpoint.
     """
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    torch.set_num_threads(1)  # every command steps small ops (docs/design.md#threads)
     try:
         return _run(_parser().parse_args(argv))
     except UserError as err:

@@ -8,7 +8,9 @@ exploration and step-size schedules read that count.
 from __future__ import annotations
 
 import copy
+import os
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -44,8 +46,17 @@ def warn_cpu_threads(device) -> None:
             f"torch uses {torch.get_num_threads()} threads: the batched hot path (many small "
             "ops) slows down many times over when another process shares a core; call "
             "torch.set_num_threads(1) before training",
-            stacklevel=3,
+            stacklevel=_first_caller_outside_package(),
         )
+
+
+def _first_caller_outside_package() -> int:
+    """``stacklevel`` for a warning raised by our caller: the first frame outside hrl_torch."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    frame, level = sys._getframe(1), 1  # level 1: the function that calls warnings.warn
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 @dataclass

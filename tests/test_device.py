@@ -59,16 +59,29 @@ def test_the_cli_trains_through_the_collector(tmp_path):
         assert torch.equal(value, collected[1][key]), key
 
 
-def test_a_cpu_trainer_on_more_than_one_thread_warns_and_one_thread_does_not():
+def _thread_warnings(threads: int) -> list[warnings.WarningMessage]:
     opts = RunOptions(seeds=[0], envs_per_learner=2, progress=False, tensorboard=False)
     before = torch.get_num_threads()
     try:
-        torch.set_num_threads(2)
-        with pytest.warns(UserWarning, match=r"torch.set_num_threads\(1\)"):
-            build_trainer(registry.get("taxi"), "maxq-q", opts)
-        torch.set_num_threads(1)
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
+        torch.set_num_threads(threads)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
             build_trainer(registry.get("taxi"), "maxq-q", opts)
     finally:
         torch.set_num_threads(before)
+    return [w for w in caught if "set_num_threads(1)" in str(w.message)]
+
+
+def test_a_cpu_trainer_on_more_than_one_thread_warns_at_the_users_line():
+    (warning,) = _thread_warnings(2)
+    assert warning.filename == __file__  # not a line inside hrl_torch
+    assert not _thread_warnings(1)
+
+
+def test_the_cli_sets_one_thread_for_every_command(capsys):
+    torch.set_num_threads(2)
+    try:
+        assert main(["list"]) == 0
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(1)
