@@ -160,11 +160,7 @@ class Trainer:
         self.logger = logger
         self.multiagent = multiagent
         self.n_agents = getattr(env, "n_agents", None)  # a multi-agent env (Chapter 6)
-        sets = env.n_learners
-        if self.n_agents is not None:
-            sets = (multiagent or MultiAgentConfig()).table_sets(env.n_learners, self.n_agents)
-        if learner.n_learners != sets:
-            raise ValueError(f"learner has {learner.n_learners} table sets, the env needs {sets}")
+        self._check_table_sets(learner, env.n_learners, self.n_agents, multiagent)
         self.P, self.E = env.n_learners, env.envs_per_learner
         self.exploration = exploration
         self.agent = self.make_agent(env, "explore")
@@ -194,6 +190,15 @@ class Trainer:
         self._last_success: list[float] = []  # the latest evaluation's details
         self.last_eval_records: TensorDict | None = None  # its episodes (evaluate_episodes)
         self._last_steps: list[float] = []
+
+    @staticmethod
+    def _check_table_sets(learner: Learner, n_learners: int, n_agents, multiagent) -> None:
+        """A ``ValueError`` unless the learner has a table set per learner (and agent)."""
+        sets = n_learners
+        if n_agents is not None:
+            sets = (multiagent or MultiAgentConfig()).table_sets(n_learners, n_agents)
+        if learner.n_learners != sets:
+            raise ValueError(f"learner has {learner.n_learners} table sets, the env needs {sets}")
 
     # ------------------------------------------------------------------ stepping
     @property

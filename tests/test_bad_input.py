@@ -115,3 +115,14 @@ def test_skipping_bad_steps_trains_on_the_rest(tmp_path):
     assert all(v >= 7.5 for v in result.final_eval), result.final_eval
     logged = (tmp_path / "progress.csv").read_text()
     assert ",charts/skipped_steps," in logged and ",nan" not in logged
+
+
+def test_a_learner_with_the_wrong_number_of_table_sets_is_refused():
+    from agents.taxi import taxi_hierarchy
+    from hrl_torch.exploration import Greedy
+    from hrl_torch.trainer import Trainer
+
+    graph = taxi_hierarchy()
+    learner = MaxQLearner(graph, n_learners=3)
+    with pytest.raises(ValueError, match="learner has 3 table sets, the env needs 2"):
+        Trainer(TaxiEnv([0, 1], envs_per_learner=4), graph, learner, Greedy())
