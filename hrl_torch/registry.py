@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import importlib
+import sys
 from importlib.metadata import entry_points
 
 from hrl_torch.experiment import DomainSpec
@@ -25,11 +26,14 @@ _SOURCES: dict[str, str] = {}
 def register(name: str, entry: str | DomainSpec, source: str = "built-in") -> None:
     """Register domain ``name`` as ``"module:attribute"`` (imported on first use) or a spec.
 
-    Raises ``ValueError`` when another source already registered ``name``.
+    Raises ``ValueError`` when another source already registered another domain as ``name``
+    (an installed plugin's module named again with ``--domain-module`` is the same domain).
     """
     if isinstance(entry, str) and ":" not in entry:
         raise ValueError(f"entry must look like 'module:attribute', got {entry!r}")
-    if name in _DOMAINS and _DOMAINS[name] != entry:
+    if name in _DOMAINS and _same(_DOMAINS[name], entry):
+        return  # registered already, under its first source
+    if name in _DOMAINS:
         raise ValueError(
             f"domain {name!r} is registered twice: {_describe(_DOMAINS[name])} "
             f"({_SOURCES[name]}) and {_describe(entry)} ({source}); rename one"
@@ -94,6 +98,18 @@ def get(name: str) -> DomainSpec:
     if not isinstance(spec, DomainSpec):
         raise ValueError(f"domain {name!r} ({_SOURCES[name]}): {entry} is not a DomainSpec")
     return spec
+
+
+def _same(a: str | DomainSpec, b: str | DomainSpec) -> bool:
+    """Whether two entries name one domain: equal, or an import string of an imported spec."""
+    return a == b or _resolves_to(a, b) or _resolves_to(b, a)
+
+
+def _resolves_to(entry: str | DomainSpec, spec: str | DomainSpec) -> bool:
+    if not isinstance(entry, str) or isinstance(spec, str):
+        return False
+    module, attr = entry.split(":")
+    return getattr(sys.modules.get(module), attr, None) is spec
 
 
 def _describe(entry: str | DomainSpec) -> str:

@@ -65,9 +65,22 @@ def test_domain_module_registers_a_module_s_domain(tmp_path, capsys, monkeypatch
     monkeypatch.setattr(registry, "_DOMAINS", dict(registry._DOMAINS))
     monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
     assert main(["--domain-module", "hrl_corridor", "list"]) == 0
-    assert "corridor [module hrl_corridor]: " in capsys.readouterr().out
+    # with the example also pip-installed (docs §5 shows both routes) it stays the plugin's
+    out = capsys.readouterr().out
+    assert "corridor [module hrl_corridor]: " in out or "corridor [plugin hrl-corridor]: " in out
     args = ["--domain-module", "hrl_corridor", "train", "corridor", "--algo", "q", "--seeds", "2"]
     assert main([*args, "--steps", "400", "--out", str(tmp_path), "--no-progress"]) == 0
+
+
+def test_an_installed_plugin_s_module_named_again_is_the_same_domain(monkeypatch):
+    """Docs §5 in order: pip-install the example, then ``--domain-module hrl_corridor``."""
+    monkeypatch.syspath_prepend(str(PLUGIN))
+    monkeypatch.setattr(registry, "_DOMAINS", dict(registry._DOMAINS))
+    monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
+    registry.register("corridor", "hrl_corridor:DOMAIN", source="plugin hrl-corridor")
+    registry.load_module("hrl_corridor")
+    assert registry.source("corridor") == "plugin hrl-corridor"
+    assert registry.get("corridor").name == "corridor"
 
 
 def test_bad_domain_modules_and_clashes_are_one_line(tmp_path, capsys, monkeypatch):
