@@ -20,21 +20,10 @@ import os
 import signal
 import sys
 
-import torch
-
-from hrl_torch.argtypes import finite, int_at_least
-from hrl_torch.sweep import add_sweep_parser
+from hrl_torch import __version__
+from hrl_torch.cli_parser import UserError, parser
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
-
-
-class UserError(Exception):
-    """A mistake in the command line: one line on stderr, exit code 2, nothing written."""
-
-    @classmethod
-    def of(cls, err: Exception) -> UserError:
-        """The library's error (a ``KeyError``, ``ValueError``, ...) as a user error."""
-        return cls(err.args[0] if err.args else str(err))
 
 
 def _load_domains(project: str, modules: list[str]) -> None:
@@ -62,88 +51,18 @@ def _load_domains(project: str, modules: list[str]) -> None:
         )
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        raise UserError(message)
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="hrl-torch", description=__doc__.split("\n")[0])
-    parser.add_argument("--project", default=".", help="repository root holding agents/ and envs/")
-    parser.add_argument(
-        "--domain-module",
-        action="append",
-        default=[],
-        metavar="MODULE",
-        help="import MODULE and register its DOMAIN / DOMAINS (repeatable)",
-    )
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="list domains and algorithms")
-    train = sub.add_parser(
-        "train",
-        help="train every seed of one algorithm as one population",
-        epilog="With --resume the checkpoint's run continues: the domain, --algo and the "
-        "run's options come from the checkpoint; only --steps and --checkpoint-every may change.",
-    )
-    train.add_argument("domain", nargs="?", default=None)
-    train.add_argument("--algo", default=None)
-    positive, natural = int_at_least(1), int_at_least(0)
-    train.add_argument("--seeds", type=positive, default=None, help="number of seeds (default 5)")
-    train.add_argument("--seed-offset", type=natural, default=None, help="first seed (default 0)")
-    train.add_argument("--backend", default=None, help="torch (batched, default) or gymnasium")
-    train.add_argument("--envs-per-seed", type=positive, default=None)
-    train.add_argument("--steps", type=positive, default=None, help="env steps per seed")
-    train.add_argument("--eval-every", type=natural, default=None, help="0: only at the end")
-    train.add_argument("--eval-episodes", type=natural, default=None, help="0: no evaluation")
-    train.add_argument("--threshold", type=finite, default=None)
-    train.add_argument("--checkpoint-every", type=natural, default=None, help="0: at the end")
-    train.add_argument("--out", default=None, help="parent folder of run folders (default runs)")
-    train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
-    train.add_argument("--device", type=_device, default=None, help="cpu (default), cuda, ...")
-    train.add_argument(
-        "--collector", action="store_true", help="step through a TorchRL Collector's frames"
-    )
-    train.add_argument(
-        "--check-leaf-rewards",
-        action="store_true",
-        help="warn when one abstract state of a primitive sees different rewards",
-    )
-    train.add_argument("--no-progress", action="store_true")
-    train.add_argument("--no-tensorboard", action="store_true")
-    sweep = add_sweep_parser(sub)
-    evaluate = sub.add_parser(
-        "eval", help="re-evaluate a run's checkpoint greedily and show its worst episodes"
-    )
-    evaluate.add_argument("run_dir", help="a run folder (holding checkpoint.pt)")
-    evaluate.add_argument(
-        "--episodes", type=positive, default=None, help="per seed (default: the run's)"
-    )
-    evaluate.add_argument("--worst", type=natural, default=10, help="episodes to show")
-    for p in (parser, train, evaluate, sweep):
-        p.add_argument("--debug", action="store_true", help="tracebacks for every error")
-    return parser
-
-
-def _device(text: str) -> str:
-    """A torch device that exists on this machine (``--device``)."""
-    try:
-        device = torch.device(text)
-    except RuntimeError as err:
-        raise argparse.ArgumentTypeError(f"not a torch device: {text!r}") from err
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise argparse.ArgumentTypeError(f"{text}: no CUDA device on this machine")
-    return text
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hrl-torch`` command: user errors are one line and exit code 2.
 
     An interrupted run (SIGINT, SIGTERM) exits with 130 / 143 after writing its checkpoint.
     """
-    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
-    torch.set_num_threads(1)  # every command steps small ops (docs/design.md#threads)
+    argv = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in argv
+    if not argv:  # no arguments: the usage, not an error
+        parser(__version__).print_help()
+        return 2
     try:
-        return _run(_parser().parse_args(argv))
+        return _run(parser(__version__).parse_args(argv))
     except UserError as err:
         if debug:
             raise
@@ -160,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import torch  # after the arguments parsed: --help and argument errors need no torch
+
+    torch.set_num_threads(1)  # every command steps small ops (docs/design.md#threads)
     if not os.path.isdir(args.project):
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
@@ -176,7 +98,8 @@ def _run(args: argparse.Namespace) -> int:
             backends = ", ".join(domain.backends)
             print(f"{name} [{registry.source(name)}]: {domain.description} (backends: {backends})")
             for algo, spec in sorted(domain.algos.items()):
-                print(f"    --algo {algo}: {spec.description}")
+                budget = f"{spec.train.steps:,} steps x {spec.envs_per_learner} envs per seed"
+                print(f"    --algo {algo}: {spec.description} [{budget}]")
         return 0
     if args.command == "eval":
         return _evaluate(args)

@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-from hrl_torch.argtypes import int_at_least
 from hrl_torch.experiment import (
     AlgoSpec,
     DomainSpec,
@@ -545,33 +544,6 @@ def write_table(rows: list[dict], keys: list[str], metric: str, sweep_dir: Path)
 
 
 # ---------------------------------------------------------------------- command line
-def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
-    """Add ``hrl-torch sweep`` to ``subparsers``; ``run_sweep_command`` runs it."""
-    positive = int_at_least(1)
-    p = subparsers.add_parser(
-        "sweep",
-        help="run a grid of hyperparameters as Ray Tune trials, one population run each",
-        epilog='Needs the sweep extra: pip install -e ".[sweep]". Grid names: TrainConfig '
-        "fields, envs_per_learner and the learner's constructor arguments.",
-    )
-    p.add_argument("domain")
-    p.add_argument("--algo", required=True)
-    p.add_argument(
-        "--grid",
-        action="append",
-        required=True,
-        metavar="NAME=V1,V2",
-        help="values of one hyperparameter (repeatable; the sweep runs their product)",
-    )
-    p.add_argument("--seeds", type=positive, default=5, help="seeds per trial (default 5)")
-    p.add_argument("--steps", type=positive, default=None, help="env steps per seed")
-    p.add_argument("--address", default=None, help="an existing Ray cluster (default: local)")
-    p.add_argument("--out", default="runs", help="parent of the sweep folder (default runs)")
-    p.add_argument("--name", default=None, help="sweep folder (default DOMAIN__ALGO__sweep)")
-    p.add_argument("--resume", action="store_true", help="continue the sweep in its folder")
-    return p
-
-
 def run_sweep_command(args: argparse.Namespace) -> int:
     """``hrl-torch sweep``: run the sweep and print its table.
 

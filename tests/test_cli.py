@@ -1,6 +1,9 @@
 """The CLI writes a complete run folder and resumes from its checkpoint."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 from hrl_torch.cli import main
 
@@ -67,3 +70,43 @@ def test_train_writes_a_run_folder_and_resumes(tmp_path, capsys):
     )
     resumed = json.loads((run_dir / "summary.json").read_text())
     assert resumed["env_steps_per_learner"] == 1600
+
+
+def test_help_version_and_usage_import_no_torch():
+    """``--help``, ``--version`` and a bare ``hrl-torch`` answer without importing torch."""
+    probe = (
+        "import sys, contextlib, io\n"
+        "from hrl_torch.cli import main\n"
+        "for argv in (['--help'], ['--version'], ['train', '--help']):\n"
+        "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+        "        try:\n"
+        "            main(argv)\n"
+        "        except SystemExit as stop:\n"
+        "            assert stop.code == 0, (argv, stop.code)\n"
+        "    assert out.getvalue().strip(), argv\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+        "    assert main([]) == 2\n"
+        "assert out.getvalue().startswith('usage: hrl-torch'), out.getvalue()\n"
+        "assert 'torch' not in sys.modules and 'tensordict' not in sys.modules\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=root, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+
+
+def test_every_option_has_help_text():
+    from hrl_torch.cli_parser import parser
+
+    def actions(p):
+        for action in p._actions:
+            yield p, action
+            for sub in getattr(action, "choices", None) or {}:
+                if isinstance(action.choices, dict):
+                    yield from actions(action.choices[sub])
+
+    missing = [
+        (p.prog, a.dest) for p, a in actions(parser("0")) if not a.help and a.dest != "command"
+    ]
+    assert not missing

@@ -9,10 +9,10 @@ import pytest
 
 import agents  # noqa: F401  (registers the domains)
 from hrl_torch import registry
+from hrl_torch.cli_parser import add_sweep_parser
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.sweep import (
     INSTALL_HINT,
-    add_sweep_parser,
     configurations,
     default_metric,
     label,
