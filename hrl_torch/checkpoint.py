@@ -7,7 +7,10 @@ from pathlib import Path
 
 import torch
 
-FORMAT = "hrl-torch/checkpoint/1"
+from hrl_torch.sparse_store import pack, unpack
+
+FORMAT = "hrl-torch/checkpoint/2"  # 2: mostly-constant tensors stored sparsely (sparse_store)
+READABLE = ("hrl-torch/checkpoint/1", FORMAT)
 
 
 class CheckpointError(RuntimeError):
@@ -20,7 +23,7 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
     try:
-        torch.save({"format": FORMAT, **state}, tmp)
+        torch.save({"format": FORMAT, **pack(state)}, tmp)
         os.replace(tmp, path)
     finally:  # a failed write leaves the previous checkpoint and no stale .tmp
         tmp.unlink(missing_ok=True)
@@ -44,7 +47,10 @@ def load_checkpoint(path: str | Path) -> dict:
         if first.startswith("Weights only load failed"):
             first = "torch.load(weights_only=True) refused it"
         raise CheckpointError(f"{path} is corrupt or not a torch checkpoint ({first})") from err
-    if not isinstance(state, dict) or state.get("format") != FORMAT:
+    if not isinstance(state, dict) or state.get("format") not in READABLE:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(f"{path} is not an {FORMAT} checkpoint (found {found!r})")
-    return state
+    try:
+        return unpack(state)
+    except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as err:
+        raise CheckpointError(f"{path} holds a damaged sparse tensor ({err})") from err

@@ -68,3 +68,31 @@ def test_resuming_a_finished_run_returns_its_result(tmp_path):
         done.final_success,
         done.final_steps,
     )
+
+
+def test_mostly_constant_tensors_are_stored_sparsely_and_come_back_bit_for_bit(tmp_path):
+    table = torch.full((8, 5000, 9), -49.96)
+    table[3, 17, 2], table[0, 0, 0], table[7, 4999, 8] = -0.0, float("nan"), 1.5
+    state = {
+        "table": table,
+        "mask": torch.zeros(70_000, dtype=torch.bool).index_fill_(0, torch.tensor([5]), True),
+        "counts": torch.arange(10_000) % 2,  # half differs from the fill: stays dense
+        "nested": [{"w": torch.ones(4096, dtype=torch.float64)}],
+    }
+    path = save_checkpoint(tmp_path / "ckpt.pt", state)
+    assert path.stat().st_size < 100_000  # dense: 1.66 MB, of which "counts" is 80 KB
+    back = load_checkpoint(path)
+    for key in ("table", "mask", "counts"):
+        assert back[key].dtype == state[key].dtype and back[key].shape == state[key].shape
+        bits = {1: torch.uint8, 8: torch.int64, 4: torch.int32}[state[key].element_size()]
+        assert torch.equal(back[key].view(bits), state[key].view(bits)), key
+    assert torch.equal(back["nested"][0]["w"], state["nested"][0]["w"])
+
+
+def test_a_damaged_sparse_tensor_is_a_checkpoint_error(tmp_path):
+    path = save_checkpoint(tmp_path / "ckpt.pt", {"w": torch.zeros(5000)})
+    state = torch.load(path, weights_only=True)
+    state["w"]["index"] = torch.tensor([10**9])
+    torch.save(state, path)
+    with pytest.raises(CheckpointError, match="damaged sparse tensor"):
+        load_checkpoint(path)
