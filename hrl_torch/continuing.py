@@ -169,6 +169,11 @@ class ThroughputEvaluator:
         return out
 
     @property
+    def throughput_tags(self) -> tuple[str, str]:
+        """The tags of the greedy and the training throughput (in ``unit``)."""
+        return self.tags[0], self.train_tags[0]
+
+    @property
     def metrics(self) -> list[str]:
         """Every tag this evaluator logs (for plots)."""
         ratio = list(self.ratio_tags) if self.ratio is not None else []

@@ -25,7 +25,8 @@ from hrl_torch.exploration import Exploration
 from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.multiagent import MultiAgentConfig
-from hrl_torch.runlog import RunLogger, make_run_dir, plot_curves
+from hrl_torch.plots import plot_curves
+from hrl_torch.runlog import RunLogger, make_run_dir
 from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
 
 EnvFactory = Callable[[Sequence[int], int, str], object]
@@ -311,15 +312,17 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start
     logger.close()
-    metrics = ["charts/eval_return", "charts/episode_return"]
+    metrics, units = ["charts/eval_return", "charts/episode_return"], {}
     if trainer.evaluator is not None:  # continuing tasks
         metrics = trainer.evaluator.metrics
+        units = {tag: trainer.evaluator.unit for tag in trainer.evaluator.throughput_tags}
     plots = plot_curves(
         run_dir / "progress.csv",
         metrics,
         run_dir,
         title=f"{domain.name} / {algo}",
         reference=domain.reference,
+        units=units,
     )
     summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
     logger.write_summary(summary)

@@ -12,7 +12,8 @@ import torch
 
 from hrl_torch import registry
 from hrl_torch.experiment import RunOptions, run_experiment
-from hrl_torch.runlog import mean_ci95, read_curves
+from hrl_torch.plots import axis_label, draw_references, draw_seeds
+from hrl_torch.runlog import read_curves
 
 
 def compare_plot(
@@ -23,7 +24,7 @@ def compare_plot(
     reference: dict[str, float] | None = None,
     ylim: tuple[float, float] | None = None,
 ) -> Path:
-    """Mean and 95% interval over seeds of ``metric`` for every labelled run folder."""
+    """Every labelled run folder's seeds, IQM and 95% bootstrap interval of ``metric``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -33,17 +34,13 @@ def compare_plot(
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for label, run_dir in runs.items():
         steps, curves = read_curves(Path(run_dir) / "progress.csv", metric)
-        if not curves:
-            continue
-        mean, half = mean_ci95(np.stack(list(curves.values())))
-        ax.plot(steps, mean, label=f"{label} ({len(curves)} seeds)")
-        ax.fill_between(steps, mean - half, mean + half, alpha=0.2)
-    for k, (name, value) in enumerate((reference or {}).items()):
-        ax.axhline(value, ls=("--", ":", "-.")[k % 3], c="gray", lw=1, label=name)
+        if curves:
+            draw_seeds(ax, steps, np.stack(list(curves.values())), label)
+    draw_references(ax, reference)
     if ylim:
         ax.set_ylim(*ylim)
-    ax.set_xlabel("env steps per learner")
-    ax.set_ylabel(metric)
+    ax.set_xlabel("env steps per learner (seed)")
+    ax.set_ylabel(axis_label(metric))
     ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -841,8 +841,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "registry-clash-allowed",
         "hrl_torch/registry.py",
-        "if name in _DOMAINS and _DOMAINS[name] != entry:",
-        "if False:",
+        "    if name in _DOMAINS:\n        raise",
+        "    if False:\n        raise",
         "a plugin silently replaces a built-in domain of the same name",
         ("tests/test_plugins.py",),
     ),
