@@ -217,14 +217,19 @@ def _train_options(args: argparse.Namespace):
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
         raise UserError.of(err) from err
     given.setdefault("seeds", list(range(5)))
-    out = args.out or "runs"
+    out = "runs" if args.out is None else args.out
+    if not out.strip():
+        raise UserError("--out must name a folder, got an empty string")
+    try:
+        opts = RunOptions(**given, **display, out=out, resume=args.resume)
+    except ValueError as err:
+        raise UserError.of(err) from err
     _check_writable_folder(out, "--out")
-    opts = RunOptions(**given, **display, out=out, resume=args.resume)
     return domain, args.algo, opts
 
 
 def _check_writable_folder(path: str, option: str) -> None:
-    """``path`` is (or can be made as) a folder this process may write in."""
+    """``path`` is (or is made now as) a folder this process may write in."""
     existing = os.path.abspath(path)
     while not os.path.exists(existing):
         existing = os.path.dirname(existing)
@@ -232,6 +237,10 @@ def _check_writable_folder(path: str, option: str) -> None:
         raise UserError(f"{option} {path}: {existing} is a file, not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UserError(f"{option} {path}: {existing} is not writable")
+    try:  # some folders say writable and are not (/proc, a read-only mount)
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        raise UserError(f"{option} {path}: cannot make the folder ({err.strerror})") from err
 
 
 def _continuation(args, state: dict, given: dict, display: dict):

@@ -26,6 +26,7 @@ from hrl_torch.graph import TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.multiagent import MultiAgentConfig
 from hrl_torch.plots import plot_curves
+from hrl_torch.rng import check_seeds
 from hrl_torch.runlog import RunLogger, make_run_dir
 from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
 
@@ -153,6 +154,17 @@ class RunOptions:
     schedule_steps: int | None = None
     check_env: bool = True
     check_leaf_rewards: bool = False
+
+    def __post_init__(self) -> None:
+        self.seeds = check_seeds(self.seeds)
+        at_least = {"envs_per_learner": 1, "steps": 1, "schedule_steps": 1, "eval_every": 0}
+        at_least |= {"eval_episodes": 0, "checkpoint_every": 0}
+        for name, low in at_least.items():
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or value < low):
+                raise ValueError(f"RunOptions.{name} must be an integer >= {low}, got {value!r}")
+        if not str(self.out).strip():
+            raise ValueError("RunOptions.out must name a folder, got an empty string")
 
 
 #: what a checkpoint records of its run, besides the domain and algorithm

@@ -10,11 +10,33 @@ every device.
 from __future__ import annotations
 
 import copy
+import numbers
 from collections.abc import Sequence
 
 import torch
 
 _MASK32 = 0xFFFFFFFF
+SEED_LIMIT = 2**32  # seeds are hashed as 32-bit keys: larger ones would collide, so refused
+
+
+def check_seeds(seeds: Sequence[int]) -> list[int]:
+    """``seeds`` as a list of distinct integers in ``[0, SEED_LIMIT)``; ``ValueError`` if not."""
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError("seeds must name at least one seed, got none")
+    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]
+    if bad:
+        raise ValueError(f"seeds must be integers, got {bad[0]!r}")
+    seeds = [int(s) for s in seeds]
+    outside = [s for s in seeds if not 0 <= s < SEED_LIMIT]
+    if outside:
+        raise ValueError(
+            f"seed {outside[0]} is outside [0, 2**32): the random streams hash 32-bit seeds, "
+            "so larger seeds would repeat smaller ones"
+        )
+    if len(set(seeds)) < len(seeds):
+        raise ValueError(f"seeds must be distinct (each names one learner), got {seeds}")
+    return seeds
 _MULT = 0x045D9F3B  # < 2**27, so (x < 2**32) * _MULT stays below 2**63
 
 
@@ -70,6 +92,8 @@ class BatchRNG:
     ) -> None:
         if envs_per_learner < 1:
             raise ValueError(f"envs_per_learner must be >= 1, got {envs_per_learner}")
+        if any(not 0 <= int(s) < SEED_LIMIT for s in seeds):
+            raise ValueError(f"seeds must lie in [0, 2**32), got {list(seeds)}")
         self.device = torch.device(device)
         self.n_learners = len(seeds)
         self.envs_per_learner = envs_per_learner

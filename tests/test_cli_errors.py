@@ -18,6 +18,12 @@ CASES = {
     "--seeds two": "argument --seeds: expected a whole number, got 'two'",
     "--backend gym": "'taxi' has no backend 'gym'; choose from ('torch', 'gymnasium')",
     "--device tpu9": "argument --device: not a torch device: 'tpu9'",
+    "--seed-offset 4294967295 --seeds 2": (
+        "seed 4294967296 is outside [0, 2**32): the random streams hash 32-bit seeds, so larger "
+        "seeds would repeat smaller ones"
+    ),
+    "--seed-offset 9223372036854775807": "seed 9223372036854775807 is outside [0, 2**32): the "
+    "random streams hash 32-bit seeds, so larger seeds would repeat smaller ones",
 }
 
 
@@ -106,3 +112,34 @@ def test_an_out_that_is_a_file_or_not_writable(tmp_path, capsys, monkeypatch):
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "locked"]
     assert not list(locked.iterdir())
+
+
+def test_out_that_is_empty_or_cannot_be_made(tmp_path, capsys):
+    assert main([*BASE, "--out", ""]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "hrl-torch: error: --out must name a folder, got an empty string"
+    )
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main([*BASE, "--out", str(blocker / "runs")]) == 2
+    assert capsys.readouterr().err.strip().endswith("is a file, not a folder")
+    if os.path.isdir("/proc/self"):  # Linux: /proc says writable to root, and is not
+        assert main([*BASE, "--out", "/proc/hrl-torch-x"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("hrl-torch: error: --out /proc/hrl-torch-x: ")
+
+
+def test_run_options_refuse_what_the_cli_refuses():
+    from hrl_torch.experiment import RunOptions
+
+    for bad, message in (
+        ({"seeds": []}, "at least one seed"),
+        ({"seeds": [0, 0]}, "distinct"),
+        ({"seeds": [2**32]}, "outside"),
+        ({"seeds": ["a"]}, "integers"),
+        ({"eval_every": -5}, "eval_every must be an integer >= 0"),
+        ({"steps": 0}, "steps must be an integer >= 1"),
+        ({"out": " "}, "must name a folder"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            RunOptions(**bad)
