@@ -15,6 +15,7 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import time
@@ -193,14 +194,30 @@ def fields_text(td) -> str:
 
 
 def _drop_rows_after(csv_path: Path, step: int) -> None:
-    """Keep the rows of ``progress.csv`` logged at or before ``step`` (atomically)."""
-    with open(csv_path, newline="") as f:
-        rows = list(csv.reader(f))
-    kept = [rows[0], *(r for r in rows[1:] if int(r[0]) <= step)]
+    """Keep the whole rows of a run's CSV logged at or before ``step`` (atomically).
+
+    A process killed mid-write leaves a partial last row (``12,0,charts/eval_return``): it has
+    no line end or too few fields, and goes with the rows after the checkpoint.
+    """
+    text = csv_path.read_text()
+    text = text[: text.rfind("\n") + 1]  # a row without its line end was cut short
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        return
+    header = rows[0]
+    kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]
     tmp = csv_path.with_suffix(".csv.tmp")
     with open(tmp, "w", newline="") as f:
         csv.writer(f, lineterminator="\n").writerows(kept)
     tmp.replace(csv_path)
+
+
+def _step_of(row: list[str]) -> float:
+    """A row's step (``inf`` for a damaged one, so that it is dropped)."""
+    try:
+        return int(row[0])
+    except ValueError:
+        return math.inf
 
 
 def _json_default(x):
@@ -210,11 +227,14 @@ def _json_default(x):
 
 
 def read_curves(csv_path: Path, metric: str) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """Steps and ``{seed: values}`` of one metric from a progress CSV (missing -> NaN)."""
+    """Steps and ``{seed: values}`` of one metric from a progress CSV (missing -> NaN).
+
+    A row cut short by a crash (no value) is skipped.
+    """
     values: dict[int, dict[int, float]] = {}
     with open(csv_path) as f:
         for row in csv.DictReader(f):
-            if row["metric"] == metric:
+            if row["metric"] == metric and row.get("value"):
                 values.setdefault(int(row["seed"]), {})[int(row["step"])] = float(row["value"])
     grid = np.array(sorted({step for d in values.values() for step in d}))
     return grid, {s: np.array([d.get(t, math.nan) for t in grid]) for s, d in values.items()}

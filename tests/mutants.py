@@ -769,7 +769,7 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "resume-keeps-rows-after-checkpoint",
         "hrl_torch/runlog.py",
-        "kept = [rows[0], *(r for r in rows[1:] if int(r[0]) <= step)]",
+        "kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]",
         "kept = rows",
         "a resumed run logs the steps after the checkpoint twice",
         ("tests/test_resume_cli.py",),

@@ -260,3 +260,21 @@ def test_the_library_resumes_from_the_checkpoint_alone(tmp_path):
     assert summary["env_steps_per_learner"] == 800 and summary["envs_per_learner"] == 4
     with pytest.raises(ValueError, match=r"seeds \[5\] differs from the checkpoint's run"):
         run_experiment(registry.get("taxi"), "maxq-q", replace(opts, seeds=[5]))
+
+
+def test_a_row_cut_short_by_a_crash_is_dropped_on_resume_at_any_byte(tmp_path):
+    """A crash at any byte of the last CSV write: the resumed log holds whole rows only."""
+    from hrl_torch.runlog import RunLogger, read_curves
+
+    whole = "step,seed,metric,value\n" + "".join(
+        f"{s},0,charts/eval_return,{s / 10:.6g}\n" for s in (4, 8, 12, 16)
+    )
+    last_row_start = whole.index("16,0")
+    for cut in range(last_row_start, len(whole)):
+        run = tmp_path / f"cut{cut}"
+        run.mkdir()
+        (run / "progress.csv").write_text(whole[:cut])
+        RunLogger(run, [0], {}, tensorboard=False, resumed_at=16).close()
+        assert (run / "progress.csv").read_text() == whole[:last_row_start], cut
+        steps, _ = read_curves(run / "progress.csv", "charts/eval_return")
+        assert list(steps) == [4, 8, 12]
