@@ -87,6 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     _load_domains(args.project, args.domain_module)
     from hrl_torch import registry
     from hrl_torch.experiment import format_summary, run_experiment
+    from hrl_torch.runlock import RunLockedError
 
     if args.command == "list":
         for name in registry.names():
@@ -113,7 +114,10 @@ def _run(args: argparse.Namespace) -> int:
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written
     if opts is None:
         return 0  # a finished run: nothing to do
-    run_dir, summary = run_experiment(domain, algo, opts)
+    try:
+        run_dir, summary = run_experiment(domain, algo, opts)
+    except RunLockedError as err:
+        raise UserError.of(err) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
     if summary["status"] == "interrupted":

@@ -27,6 +27,7 @@ from hrl_torch.learners.base import Learner
 from hrl_torch.multiagent import MultiAgentConfig
 from hrl_torch.plots import plot_curves
 from hrl_torch.rng import check_seeds
+from hrl_torch.runlock import RunLock
 from hrl_torch.runlog import RunLogger, make_run_dir
 from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
 
@@ -311,6 +312,12 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     if opts.check_env:
         check_domain_env(domain, algo, opts.backend)
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
+    with RunLock(run_dir):  # one writer per folder, before anything in it changes
+        return _run_locked(domain, algo, opts, spec, state, run_dir)
+
+
+def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: Path):
+    """``run_experiment`` once the folder is this process's."""
     hparams = hparams_of(
         domain=domain.name,
         algo=algo,

@@ -278,3 +278,51 @@ def test_a_row_cut_short_by_a_crash_is_dropped_on_resume_at_any_byte(tmp_path):
         assert (run / "progress.csv").read_text() == whole[:last_row_start], cut
         steps, _ = read_curves(run / "progress.csv", "charts/eval_return")
         assert list(steps) == [4, 8, 12]
+
+
+def test_a_second_writer_of_a_run_folder_is_refused_and_changes_nothing(tmp_path, capsys):
+    from hrl_torch.runlock import RunLock
+
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    capsys.readouterr()
+    with RunLock(run_dir):  # a resume of this folder is running (another open file: refused)
+        before = snapshot(run_dir)
+        assert resume(run_dir, "--steps", "800") == 2
+        assert snapshot(run_dir) == before
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"hrl-torch: error: {run_dir} is in use by process {os.getpid()} (another run or "
+        "resume writes it); wait for it to end"
+    ]
+    assert resume(run_dir, "--steps", "800") == 0  # the lock goes with its holder
+
+
+def test_two_concurrent_resumes_one_is_refused(tmp_path):
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    cmd = [
+        sys.executable,
+        "-m",
+        "hrl_torch.cli",
+        "train",
+        "--resume",
+        str(run_dir / "checkpoint.pt"),
+    ]
+    cmd += ["--steps", "40000", "--no-progress"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    first = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.time() + 60
+        lock = run_dir / ".lock"  # the holder writes its pid once it holds the lock
+        while lock.read_text().strip() != str(first.pid):
+            assert time.time() < deadline and first.poll() is None, first.stderr.read()
+            time.sleep(0.1)
+        second = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+        assert second.returncode == 2
+        assert f"is in use by process {first.pid}" in second.stderr
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.wait(timeout=120)
+    resumes = json.loads((run_dir / "hparams.json").read_text())["resumes"]
+    assert len(resumes) == 1
