@@ -19,6 +19,7 @@ import importlib
 import os
 import signal
 import sys
+from pathlib import Path
 
 from hrl_torch import __version__
 from hrl_torch.cli_parser import UserError, parser
@@ -26,13 +27,23 @@ from hrl_torch.cli_parser import UserError, parser
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
 
-def _load_domains(project: str, modules: list[str]) -> None:
-    """Register the built-in domains (``agents`` under ``project``), plugins and ``modules``."""
+def _load_domains(project: str | None, modules: list[str]) -> None:
+    """Register the built-in domains, plugins and ``modules``.
+
+    The built-in domains are the ``agents`` package of ``project`` or, by default, of the
+    repository this hrl-torch is installed from, never one the working folder happens to hold
+    (``hrl-torch eval .`` in a folder someone sent you would run its ``agents.py``).
+    ``--domain-module`` modules are also looked for in the working folder, after the rest.
+    """
     from hrl_torch import registry
 
-    path = os.path.abspath(project)
-    if path not in sys.path:
-        sys.path.insert(0, path)
+    root = os.path.abspath(project) if project is not None else _installed_repository()
+    if root is not None:
+        if root in sys.path:
+            sys.path.remove(root)
+        sys.path.insert(0, root)
+    if modules and os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
     try:
         importlib.import_module("agents")
     except ModuleNotFoundError as err:
@@ -46,9 +57,15 @@ def _load_domains(project: str, modules: list[str]) -> None:
         raise UserError(str(err)) from err
     if not registry.names():
         raise UserError(
-            f"no domains: no 'agents' package under {path} (run from the repository root or "
-            "pass --project), no installed plugin, no --domain-module"
+            f"no domains: no 'agents' package under {root} (pass --project REPOSITORY), no "
+            "installed plugin, no --domain-module"
         )
+
+
+def _installed_repository() -> str | None:
+    """The repository root this hrl-torch runs from, if it holds the built-in ``agents``."""
+    root = Path(__file__).resolve().parents[1]
+    return str(root) if (root / "agents" / "__init__.py").is_file() else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,7 +99,7 @@ def _run(args: argparse.Namespace) -> int:
     import torch  # after the arguments parsed: --help and argument errors need no torch
 
     torch.set_num_threads(1)  # every command steps small ops (docs/design.md#threads)
-    if not os.path.isdir(args.project):
+    if args.project is not None and not os.path.isdir(args.project):
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
     from hrl_torch import registry

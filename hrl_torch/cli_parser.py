@@ -48,7 +48,10 @@ def parser(version: str) -> argparse.ArgumentParser:
     top = _Parser(prog="hrl-torch", description=DESCRIPTION)
     top.add_argument("--version", action="version", version=f"hrl-torch {version}")
     top.add_argument(
-        "--project", default=".", help="repository root holding agents/ and envs/ (default: .)"
+        "--project",
+        default=None,
+        help="repository root holding agents/ and envs/ (default: the one hrl-torch is "
+        "installed from; never the working folder's)",
     )
     top.add_argument(
         "--domain-module",

@@ -1,6 +1,7 @@
 """Every user error of the CLI is one line on stderr and exit code 2, and nothing is written."""
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -143,3 +144,21 @@ def test_run_options_refuse_what_the_cli_refuses():
     ):
         with pytest.raises(ValueError, match=message):
             RunOptions(**bad)
+
+
+def test_an_agents_module_in_the_working_folder_is_not_run(tmp_path):
+    """``hrl-torch list`` (or ``eval .``) in a folder holding an ``agents.py`` runs none of it."""
+    import subprocess
+    import sys
+
+    (tmp_path / "agents.py").write_text("raise SystemExit('the working folder agents.py ran')\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "hrl_torch.cli", "list"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    assert done.returncode == 0, done.stderr
+    assert "taxi [built-in]" in done.stdout
