@@ -28,7 +28,7 @@ from hrl_torch.multiagent import MultiAgentConfig
 from hrl_torch.plots import plot_curves
 from hrl_torch.rng import check_seeds
 from hrl_torch.runlock import RunLock
-from hrl_torch.runlog import RunLogger, make_run_dir
+from hrl_torch.runlog import RunLogger, code_version, make_run_dir
 from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
 
 EnvFactory = Callable[[Sequence[int], int, str], object]
@@ -197,9 +197,8 @@ def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
     return domain.algos[algo]
 
 
-def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
-    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
-    spec = check_choice(domain, algo, opts.backend)
+def effective_train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
+    """The algorithm's ``TrainConfig`` with the run's options applied (what the run uses)."""
     changes = {
         k: getattr(opts, k)
         for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
@@ -208,6 +207,13 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
     config = replace(spec.train, progress=opts.progress, **changes)
     if opts.check_leaf_rewards:
         config.check_leaf_rewards = True
+    return config
+
+
+def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
+    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
+    spec = check_choice(domain, algo, opts.backend)
+    config = effective_train_config(spec, opts)
     schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
     n_envs = opts.envs_per_learner or spec.envs_per_learner
@@ -254,6 +260,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         "device": opts.device,
         "collector": opts.collector,
         "version": __version__,
+        "code": code_version(),
     }
     return trainer
 
@@ -318,13 +325,14 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
 
 def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: Path):
     """``run_experiment`` once the folder is this process's."""
-    hparams = hparams_of(
+    hparams = hparams_of(  # what this run uses: the domain's defaults with the options applied
         domain=domain.name,
         algo=algo,
         options=opts,
-        train=spec.train,
+        train=effective_train_config(spec, opts),
         executor=spec.executor,
-        envs_per_learner=spec.envs_per_learner,
+        envs_per_learner=opts.envs_per_learner or spec.envs_per_learner,
+        code=code_version(),
     )
     logger, trainer = _start(domain, algo, opts, run_dir, hparams, state)
     start = time.perf_counter()

@@ -15,15 +15,45 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
+import subprocess
 import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+
+@functools.cache
+def code_version() -> dict:
+    """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
+    from hrl_torch import __version__
+
+    root = Path(__file__).resolve().parents[1]
+    out = {"version": __version__, "commit": None, "dirty": None}
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        if head.returncode == 0:
+            status = subprocess.run(
+                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+            )
+            out["commit"] = head.stdout.strip()
+            out["dirty"] = bool(status.stdout.strip()) if status.returncode == 0 else None
+    except (OSError, subprocess.TimeoutExpired):  # no git here: the version alone
+        pass
+    return out
 
 
 def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:

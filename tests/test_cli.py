@@ -46,6 +46,14 @@ def test_train_writes_a_run_folder_and_resumes(tmp_path, capsys):
     assert list((run_dir / "tb" / "seed_0").glob("events.out.tfevents.*"))
     assert (run_dir / "checkpoint.pt").exists()
     assert "final eval return" in capsys.readouterr().out
+    # the record is what ran: the options' budget, not the domain's default, and the code
+    hparams = json.loads((run_dir / "hparams.json").read_text())
+    assert hparams["train.steps"] == 800 and hparams["train.eval_every"] == 400
+    assert hparams["envs_per_learner"] == 8
+    assert set(hparams["code"]) == {"version", "commit", "dirty"}
+    from hrl_torch.checkpoint import load_checkpoint
+
+    assert load_checkpoint(run_dir / "checkpoint.pt")["run"]["code"] == hparams["code"]
 
     main(
         [
