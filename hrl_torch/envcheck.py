@@ -54,7 +54,8 @@ def check_env(
             two-seed population sees what the same seed sees alone (a row's random stream
             must not depend on the other rows).
         steps: random steps to take.
-        torchrl: also run TorchRL's ``check_env_specs`` on the env's ``TorchRLEnv`` wrapper.
+        torchrl: also run TorchRL's ``check_env_specs`` on the env's TorchRL wrapper
+            (``TorchRLEnv``, or ``MultiAgentTorchRLEnv`` for a multi-agent env).
         gymnasium: also run gymnasium's ``check_env`` on one row of ``make_env`` as a
             ``gymnasium.Env`` (``hrl_torch.adapters.BatchedToGymnasium``; needs ``make_env``).
     """
@@ -245,10 +246,13 @@ def _check_abstractions(graph: TaskGraph, td, t: int, failures: list[str]) -> No
 def _check_torchrl(env, failures: list[str]) -> None:
     from torchrl.envs.utils import check_env_specs
 
+    from hrl_torch.multiagent_env import MultiAgentBatchedEnv
     from hrl_torch.torchrl_env import TorchRLEnv
+    from hrl_torch.torchrl_multiagent import MultiAgentTorchRLEnv
 
+    wrapper = MultiAgentTorchRLEnv if isinstance(env, MultiAgentBatchedEnv) else TorchRLEnv
     try:
-        check_env_specs(TorchRLEnv(env))
+        check_env_specs(wrapper(env))
     except Exception as err:
         failures.append(f"TorchRL check_env_specs: {str(err).splitlines()[0]}")
 

@@ -30,6 +30,13 @@ def test_every_domain_keeps_the_contract(name):
     assert before["rng"] == after["rng"]
 
 
+@pytest.mark.parametrize("name", ["trash", "two-taxi", "four-agv"])
+def test_torchrl_checker_runs_on_multi_agent_envs(name):
+    domain = registry.get(name)
+    env = domain.make_env([0], 2, "torch")
+    check_env(env, steps=8, torchrl=True)  # through MultiAgentTorchRLEnv
+
+
 def test_torchrl_and_gymnasium_checkers_run_on_the_wrappers():
     check_env(TaxiEnv([0], 2), make_graph(), TaxiEnv, steps=8, torchrl=True, gymnasium=True)
     with pytest.raises(EnvContractError, match="gymnasium check_env: "):
