@@ -215,8 +215,11 @@ def read_episodes(run_dir: str | Path, step: int | None = None) -> list[dict]:
 def fields_text(td) -> str:
     """``k=v`` for every field of one observation (floats with 3 significant digits)."""
     parts = []
-    for key, value in sorted(td.items(include_nested=True, leaves_only=True)):
-        name = key if isinstance(key, str) else ".".join(key)
+    named = {  # nested keys (a multi-agent start's "agents" fields) as dotted names
+        key if isinstance(key, str) else ".".join(key): value
+        for key, value in td.items(include_nested=True, leaves_only=True)
+    }
+    for name, value in sorted(named.items()):
         flat = value.flatten().tolist()
         text = ",".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in flat)
         parts.append(f"{name}={text}")

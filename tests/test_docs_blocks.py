@@ -32,6 +32,11 @@ SMALLER = {
         "eval_episodes=50": "eval_episodes=5",
     },
     "docs/sweeps.md": {"seeds=5, steps=15_000": "seeds=2, steps=500"},
+    "docs/multiagent-walkthrough.md": {
+        "seeds, steps = [0, 1, 2], 12_000": "seeds, steps = [0, 1], 600",
+        "eval_episodes=50": "eval_episodes=5",
+        "num_cycles=100": "num_cycles=20",
+    },
 }
 NEEDS = {"docs/sweeps.md": "ray"}  # an optional extra the page's blocks import
 
