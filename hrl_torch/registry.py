@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 from importlib.metadata import entry_points
 
-from hrl_torch.experiment import DomainSpec
+from hrl_torch.domain import DomainSpec
 
 ENTRY_POINT_GROUP = "hrl_torch.domains"
 

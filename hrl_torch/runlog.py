@@ -20,9 +20,23 @@ import math
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 
 import numpy as np
+
+
+def hparams_of(**parts) -> dict:
+    """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
+    out = {}
+    for name, value in parts.items():
+        if is_dataclass(value):
+            out.update({f"{name}.{k}": v for k, v in asdict(value).items()})
+        elif callable(value):
+            out[name] = getattr(value, "__name__", repr(value))
+        else:
+            out[name] = value
+    return out
 
 
 def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
