@@ -29,6 +29,11 @@ class GymnasiumBatchEnv:
             hierarchy reads (default: ``{"observation": obs}``).
     """
 
+    #: no counter-based random stream to restart (each gymnasium env keeps its own generator)
+    rng = None
+    #: rows cannot be split off (``BatchedEnv.subset_safe``)
+    subset_safe = False
+
     def __init__(
         self,
         make_env: Callable[[], gym.Env],

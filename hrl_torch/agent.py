@@ -22,6 +22,8 @@ and the scripts all step through this class.
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import torch
 from tensordict import TensorDict
 
@@ -91,16 +93,13 @@ class FrozenValues:
 
 
 def make_policy(learner: Learner, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
-    """The executor policy of ``learner``: its own ``make_policy`` if it has one, else values.
+    """The executor policy of ``learner`` (``Learner.make_policy``; values by default).
 
     Policy-gradient and hybrid learners supply their own policy (PG nodes sample from their
     heads); ``evaluate`` asks for the evaluation policy (PG nodes act on their modes). Value
     learners choose with ``exploration`` over their action values (``ValuePolicy``).
     """
-    make = getattr(learner, "make_policy", None)
-    if make is not None:
-        return make(exploration, rng, evaluate=evaluate)
-    return ValuePolicy(learner, exploration, rng)
+    return learner.make_policy(exploration, rng, evaluate=evaluate)
 
 
 class HierarchicalAgent:
@@ -151,8 +150,8 @@ class HierarchicalAgent:
             learner.gamma,
             executor_config,
             learner=rows,
-            score_width=0 if evaluate else getattr(learner, "score_width", 0),
-            uses=getattr(learner, "uses", None) if uses is None else uses,
+            score_width=0 if evaluate else learner.score_width,
+            uses=learner.uses if uses is None else uses,
             count_stats=learn,  # (nobody reads an evaluation's subtask statistics)
         )
         self.rows = self.executor.learner
@@ -202,11 +201,7 @@ class HierarchicalAgent:
             transitions=False,
             rows=self.rows[rows],
         )
-        old, new = self.executor, sub.executor
-        new.stack = old.stack[rows]
-        new._action = old._action[rows]
-        new._obs = None if old._obs is None else old._obs[rows]
-        new.invoked = old.invoked[rows]
+        sub.executor.continue_rows(self.executor, rows)
         sub.clock = self.clock
         sub.frozen = self.frozen
         return sub
@@ -256,3 +251,57 @@ class HierarchicalAgent:
         if self.learn:
             self.update(batch)
         return action
+
+
+class AgentFactory(Protocol):
+    """Builds a run's agents (training and evaluation) over an env's rows.
+
+    ``Trainer`` takes one: ``SingleAgentFactory`` (the default) or, for a multi-agent env,
+    ``hrl_torch.multiagent_factory.MultiAgentFactory``.
+
+    Attributes:
+        n_agents: agents per env row (``None``: one agent per row, a single-agent env).
+    """
+
+    n_agents: int | None
+
+    def __call__(
+        self,
+        graph: TaskGraph,
+        learner: Learner,
+        exploration: Exploration,
+        env,
+        stream: str,
+        executor_config: ExecutorConfig,
+        **options,
+    ) -> HierarchicalAgent:
+        """An agent over ``env``'s rows; its random numbers are the stream ``stream``."""
+        ...
+
+    def table_sets(self, n_learners: int) -> int:
+        """Table sets the learner needs for ``n_learners`` seeds."""
+        ...
+
+    def training_metrics(self, graph: TaskGraph, calls: torch.Tensor) -> dict[str, list[float]]:
+        """Metrics of these agents at a log (``calls [P, n_nodes]``: calls per seed)."""
+        ...
+
+
+class SingleAgentFactory:
+    """``HierarchicalAgent``s: one agent per env row."""
+
+    n_agents = None
+
+    def __call__(self, graph, learner, exploration, env, stream, executor_config, **options):
+        """An agent over ``env``'s rows (``AgentFactory``)."""
+        e = env.envs_per_learner
+        rng = BatchRNG(env.seeds, e, stream)
+        return HierarchicalAgent(graph, learner, exploration, rng, e, executor_config, **options)
+
+    def table_sets(self, n_learners: int) -> int:
+        """One table set per seed."""
+        return n_learners
+
+    def training_metrics(self, graph, calls) -> dict[str, list[float]]:
+        """None."""
+        return {}

@@ -1,9 +1,16 @@
-"""Checkpoint files: atomic writes, safe loads (``weights_only=True``) and clear errors."""
+"""Checkpoints: atomic writes, safe loads (``weights_only=True``) and clear errors.
+
+``Checkpointer`` saves and restores every part of a training run at once.
+"""
 
 from __future__ import annotations
 
+import copy
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import torch
 
@@ -54,3 +61,84 @@ def load_checkpoint(path: str | Path) -> dict:
         return unpack(state)
     except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"{path} holds a damaged sparse tensor ({err})") from err
+
+
+@runtime_checkable
+class Stateful(Protocol):
+    """What a checkpoint saves and restores: ``state_dict`` and ``load_state_dict``."""
+
+    def state_dict(self) -> dict:
+        """The part's state (tensors, numbers, strings, lists and dicts)."""
+        ...
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``; a ``ValueError`` (or other error) when it does not fit."""
+        ...
+
+
+@dataclass
+class StateOf:
+    """A ``Stateful`` made of two functions (e.g. a loop's own counters)."""
+
+    state_dict: Callable[[], dict]
+    load_state_dict: Callable[[dict], None]
+
+
+class Checkpointer:
+    """A training run's checkpoint: every part's state, restored all or nothing.
+
+    Args:
+        parts: ``() -> {name: part}``, each saved under its name (``None``: the run has no
+            such part); asked at every save and load, so a part replaced (``trainer.env =
+            ...``) is the one saved.
+        flat: parts whose keys go at the top level of the state (the loop's counters).
+        optional: names a checkpoint may lack (the part then keeps its state).
+    """
+
+    def __init__(
+        self,
+        parts: Callable[[], dict[str, Stateful | None]],
+        flat: tuple[Stateful, ...] = (),
+        optional: frozenset[str] = frozenset(),
+    ) -> None:
+        self._parts = parts
+        self.flat, self.optional = flat, optional
+
+    @property
+    def parts(self) -> dict[str, Stateful]:
+        """The named parts now (those that exist)."""
+        return {k: v for k, v in self._parts().items() if v is not None}
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue the run exactly."""
+        state = {k: part.state_dict() for k, part in self.parts.items()}
+        for part in self.flat:
+            state.update(part.state_dict())
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``; on any mismatch nothing changes and ``CheckpointError`` rises."""
+        backup = copy.deepcopy(self.state_dict())
+        try:
+            self._apply(state)
+        except Exception as err:
+            self._apply(backup)
+            raise CheckpointError(f"checkpoint does not fit this run: {err}") from err
+
+    def _apply(self, state: dict) -> None:
+        for name, part in self.parts.items():
+            if name in state or name not in self.optional:
+                part.load_state_dict(state[name])
+        for part in self.flat:
+            part.load_state_dict(state)
+
+    def save(self, path, run: dict | None = None) -> None:
+        """Write the checkpoint (and the run's configuration ``run``, if known) to ``path``."""
+        state = {"trainer": self.state_dict()}
+        if run is not None:
+            state["run"] = run
+        save_checkpoint(path, state)
+
+    def load(self, path) -> None:
+        """Continue from a checkpoint written by ``save``."""
+        self.load_state_dict(load_checkpoint(path)["trainer"])

@@ -26,10 +26,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.evaluation import Evaluator
 from hrl_torch.ops import argmax_last
 
 Metric = Callable[[TensorDict], torch.Tensor]
@@ -41,7 +43,7 @@ def reward_metric(td: TensorDict) -> torch.Tensor:
 
 
 @dataclass
-class ThroughputEvaluator:
+class ThroughputEvaluator(Evaluator):
     """Greedy and training throughput of every learner (see the module docstring).
 
     Attributes:
@@ -61,6 +63,8 @@ class ThroughputEvaluator:
             reported (e.g. waiting time per delivered passenger), greedy and in training.
         ratio_tags: logged names of the greedy and the training ratio.
     """
+
+    continuing: ClassVar[bool] = True
 
     horizon: int = 1_000
     burn_in: int = 100
@@ -85,7 +89,7 @@ class ThroughputEvaluator:
         env = trainer.eval_env
         if env is None:
             raise ValueError("a throughput evaluation needs an eval env (eval_episodes > 0)")
-        if hasattr(env, "rng"):
+        if env.rng is not None:
             env.rng.load_state_dict({"counter": 0})
         agent = trainer.evaluation_agent(env, "eval-explore")
         n_steps = self.max_steps if self.horizon_time else self.burn_in + self.horizon
@@ -169,9 +173,9 @@ class ThroughputEvaluator:
         return out
 
     @property
-    def throughput_tags(self) -> tuple[str, str]:
-        """The tags of the greedy and the training throughput (in ``unit``)."""
-        return self.tags[0], self.train_tags[0]
+    def units(self) -> dict[str, str]:
+        """The greedy and the training throughput are in ``unit``."""
+        return {self.tags[0]: self.unit, self.train_tags[0]: self.unit}
 
     @property
     def metrics(self) -> list[str]:

@@ -8,110 +8,41 @@ finished SMDP transitions as a TensorDict. ``act`` pushes children until a primi
 and returns the primitive actions. The executor never updates values, and never writes into a
 stack: each call replaces ``self.stack`` by a new one.
 
-Transitions are a TensorDict ``[B]`` with ``learner [B]`` (learner of the row) and two nested
-TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
-
-``batch[LEVEL]`` ``[B, D]``, level ``j`` is the subtask whose child ended:
-
-- ``valid``: a transition was emitted at this level;
-- ``inst``, ``node``, ``child`` (slot in the node's children), ``parent_inst``;
-- ``state`` / ``next_state``: abstract state of ``node`` when the child started / at ``s'``;
-- ``steps`` (primitive steps ``N``), ``duration`` (time ``tau``), ``reward`` (external, summed),
-  ``discounted_reward`` (sum of ``gamma**t r``), ``internal_reward`` (discounted shaping of
-  ``node``), ``pseudo_reward`` (``node``'s pseudo reward if ``s'`` is terminal for it);
-- ``terminal`` (``s'`` is terminal for ``node``), ``child_done`` (the child ended by its own
-  termination, not by an abort), ``truncated`` (time limit), ``greedy`` (the child and all its
-  ancestors were chosen greedily), ``own_greedy`` (the child was chosen greedily);
-- ``ran``: the level holds the primitive that ran this step (its ``state`` is the primitive's
-  own abstract state and ``child`` is 0), when the step teaches; the same step as
-  ``batch[PRIMITIVE]``, placed on its level so that one update can reach ``C`` of the finished
-  children and ``V`` of the primitive;
-- with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
-  ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
-  where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
-- with feature nodes (``Subtask.features``): ``features`` / ``next_features``
-  ``[B, D, F]``, the node's continuous features where the child started / at ``s'``;
-- with a policy that scores its choices (PG nodes): ``score_index`` / ``score_value``
-  ``[B, D, K]``, the likelihood-ratio term of the child's choice.
-
-``batch[PRIMITIVE]`` ``[B]``, the primitive step just taken: ``valid``, ``inst``, ``node``,
-``state``, ``reward``, ``duration``, ``greedy`` (its parent and all ancestors chose greedily),
-``action`` (the env action, ``[B, action_dim]`` in continuous action spaces).
-
-Some keys are computed only when the executor's ``uses`` asks for them (``OPTIONAL``; a
-learner names the ones it reads in ``Learner.uses``): ``parent_inst``, ``next_state``,
-``truncated``, the greedy flags, and ``batch[PRIMITIVE]``'s fields other than ``reward`` and
-``duration``.
+The transitions (a TensorDict ``[B]`` with ``learner``, ``batch[LEVEL] [B, D]`` and
+``batch[PRIMITIVE] [B]``) are declared key by key, with shapes and dtypes, in
+``hrl_torch.transitions`` (``LEVEL_KEYS``, ``PRIMITIVE_KEYS``); some keys are computed only when
+the executor's ``uses`` asks for them (``OPTIONAL``; a learner names the ones it reads in
+``Learner.uses``). ``Choice``, ``Policy`` and the policies' optional capabilities live there too
+(re-exported here).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Literal, Protocol
+from dataclasses import dataclass
+from typing import Literal
 
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.descent import Descent
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.ops import add_at, discount, entries
 from hrl_torch.stack import TaskStack
-
-#: key of the per-level transitions ``[B, D]`` in a transition batch
-LEVEL = "level"
-#: key of the primitive step ``[B]`` in a transition batch
-PRIMITIVE = "primitive"
+from hrl_torch.transitions import (  # noqa: F401  (LEVEL, PRIMITIVE, Choice, Policy: re-exported)
+    LEVEL,
+    OPTIONAL,
+    PRIMITIVE,
+    Choice,
+    ChoosesAll,
+    Policy,
+    SelectsRows,
+    TransitionWriter,
+    as_choice,
+)
 
 
 class SubtaskTimeoutError(RuntimeError):
     """A subtask ran more primitive steps than ``ExecutorConfig.max_subtask_steps``."""
-
-
-@dataclass
-class Choice:
-    """A policy's choices for the ``B`` rows of one push.
-
-    Attributes:
-        child: chosen child slot ``[B]`` (ignored for rows that do not push).
-        greedy: the choice is the policy's greedy one ``[B]``.
-        action: ``[B, action_dim]``, the action value of rows whose child is a continuous
-            primitive (graphs with continuous primitives), else ``None``.
-        score_index: ``[B, K]`` flat parameter indices of the choice's likelihood-ratio term
-            (policy-gradient nodes), kept on the stack until the child ends; else ``None``.
-        score_value: ``[B, K]`` its values.
-    """
-
-    child: torch.Tensor
-    greedy: torch.Tensor
-    action: torch.Tensor | None = None
-    score_index: torch.Tensor | None = None
-    score_value: torch.Tensor | None = None
-
-
-class Policy(Protocol):
-    """Chooses children for the instances on top of the stacks.
-
-    Besides ``select`` a policy may offer ``choose_all(ctx, step) -> Choice | None``: the
-    choices ``[B, Ic]`` of every choosing instance (``graph.choosers``) at once, which the
-    executor then follows down the stacks (``None``: ask ``select``); and
-    ``select_rows(inst, ctx, available, step, push, rows) -> Choice``: ``select`` for the
-    batch rows ``rows [R]`` only (``inst`` and ``available`` are theirs), the same choices as
-    ``select`` makes for those rows, used on large CPU batches.
-    """
-
-    def new_step(self) -> None:
-        """Called once at the start of every ``act`` (draw this step's random numbers)."""
-        ...
-
-    def select(
-        self, inst: torch.Tensor, ctx: StepContext, available: torch.Tensor, step: int, push: int
-    ) -> Choice:
-        """The choices for instances ``inst [B]`` among ``available [B, A]`` children.
-
-        ``push`` is the stack level (depth) of the instances that choose; rows whose instance
-        does not choose at this level get any value (ignored). (A tuple ``(child, greedy[,
-        action])`` is accepted too.)
-        """
-        ...
 
 
 @dataclass
@@ -158,11 +89,8 @@ class HierarchicalExecutor:
         count_stats: keep the subtask statistics (``stats``; off for evaluation agents).
     """
 
-    #: transition keys computed only when asked for (``uses``): ``batch[LEVEL]``'s
-    #: ``parent_inst``, ``next_state``, ``truncated``; ``"greedy"`` for the greedy flags
-    #: (``greedy``, ``own_greedy`` of both parts); ``"primitive"`` for ``batch[PRIMITIVE]``'s
-    #: fields other than ``reward`` and ``duration``
-    OPTIONAL = frozenset({"parent_inst", "next_state", "truncated", "greedy", "primitive"})
+    #: transition keys computed only when asked for (``hrl_torch.transitions.OPTIONAL``)
+    OPTIONAL = OPTIONAL
 
     def __init__(
         self,
@@ -197,9 +125,8 @@ class HierarchicalExecutor:
         self.stack = TaskStack.empty(
             graph, batch_size, max(self.config.record_visited, 1), score_width
         )
-        self._visit_slots = torch.arange(max(self.config.record_visited, 1), **long)
-        self._row_base = self.rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
-        self._init_descent()
+        self.descent = Descent(graph, batch_size, score_width)
+        self.writer = TransitionWriter(self)
         # the per-level sums a new child restarts (the discounted sums are the plain ones when
         # gamma is 1; the internal ones stay 0 without shaping rewards)
         self._accumulators = ["steps", "time", "reward"]
@@ -207,7 +134,6 @@ class HierarchicalExecutor:
             self._accumulators.append("disc_reward")
         if graph.shaping_nodes:
             self._accumulators.append("internal")
-        self._no_reward = torch.zeros(batch_size, self.depth, device=device)
         self._spans, self._span_code_1 = _level_spans(self.depth, graph.inst_depth_1)
         self._memory_depth = _memory_feature_depth(graph)
         self._obs = None
@@ -232,14 +158,33 @@ class HierarchicalExecutor:
             )
         return cls.OPTIONAL if uses is None else frozenset(uses)
 
-    def _init_descent(self) -> None:
-        """The descent's index bases (``_descend``): each row's block of choices, codes, flags."""
-        g, long = self.graph, dict(dtype=torch.long, device=self.device)
-        ic, codes = g.n_choosers, g.n_choosers + g.n_instances + 1
-        self._chooser_base = (torch.arange(ic, **long) * g.max_children)[None, :]
-        self._leaf_codes = torch.arange(ic, codes, **long).expand(self.batch_size, -1)
-        self._code_base = self.rows * codes
-        self._greedy_base = self.rows[:, None] * (ic + 1)
+    def transition_sizes(self) -> dict[str, int]:
+        """The dims of this executor's transitions (``hrl_torch.transitions.check_transitions``)."""
+        g = self.graph
+        return {
+            "B": self.batch_size,
+            "D": self.depth,
+            "L": self.config.record_visited,
+            "F": g.max_features,
+            "K": self.score_width,
+            "A": g.action_dim,
+        }
+
+    @property
+    def acting(self) -> torch.Tensor | None:
+        """The agent rows acting at the current step ``[B]`` (``None``: every row acts)."""
+        return self._acting
+
+    def continue_rows(self, other: HierarchicalExecutor, rows: torch.Tensor) -> None:
+        """Take over the rows ``rows`` of ``other`` in their current state (this has ``len(rows)``).
+
+        Their Task-Stacks, last actions and observations and the latest invocations carry over,
+        so each row goes on exactly as in ``other`` (``HierarchicalAgent.subset``).
+        """
+        self.stack = other.stack[rows]
+        self._action = other._action[rows]
+        self._obs = None if other._obs is None else other._obs[rows]
+        self.invoked = other.invoked[rows]
 
     @property
     def stack(self) -> TaskStack:
@@ -291,12 +236,15 @@ class HierarchicalExecutor:
             if rows.numel():
                 started = g.start_features(ctx.obs[rows], ctx.features.index_select(0, rows))
                 new_features = ctx.features.index_copy(0, rows, started)
-        choose_all = getattr(policy, "choose_all", None)
-        choice = choose_all(ctx, step) if choose_all is not None else None
+        choice = policy.choose_all(ctx, step) if isinstance(policy, ChoosesAll) else None
         if choice is not None:
-            top1, own_greedy = self._descend(f, choice, "greedy" in self.uses)
+            top1, own_greedy = self.descent.follow(
+                self._start_code(f), choice, "greedy" in self.uses
+            )
         else:
-            top1, own_greedy = self._descend_level_by_level(f, ctx, policy, step, new_features)
+            top1, own_greedy = self.descent.level_by_level(
+                f, self._start_code(f), ctx, policy, step, new_features, self.COMPACT_ROWS
+            )
         self._push(f, ctx, top1, own_greedy, new_features)
         self._replace(f)
         self._acting = None
@@ -308,7 +256,7 @@ class HierarchicalExecutor:
         return self._action
 
     def _start_code(self, f: dict) -> torch.Tensor:
-        """Where each row's descent starts ``[B]`` (a descent code, ``graph._compile_paths``).
+        """Where each row's descent starts ``[B]`` (a descent code, ``compile_paths``).
 
         The instance on top (the root for an empty stack); nothing for a row waiting for its
         reset and for an agent row that does not act (its primitive stays on top).
@@ -319,139 +267,6 @@ class HierarchicalExecutor:
         if self._acting is not None:
             code = torch.where(self._acting, code, g.n_choosers + 1 + top)
         return code
-
-    def _descend(self, f: dict, choice: Choice, greedy: bool = True):
-        """Follow the choices of every choosing instance ``[B, Ic]`` down to a primitive.
-
-        Returns the instance on top + 1 ``[B]`` and each level's choice greedy flag on the
-        new stack ``[B, D]`` (True where nothing was chosen; ``None`` without ``greedy``).
-        """
-        g, ic = self.graph, self.graph.n_choosers
-        nxt = torch.take(g.chooser_next_code, self._chooser_base + choice.child)
-        nxt = torch.cat([nxt, self._leaf_codes], 1)  # a primitive stays where it is
-        code = self._start_code(f)
-        for _ in range(self.depth - 1):
-            code = torch.take(nxt, self._code_base + code)  # (take reads nxt flat)
-        top1 = code - ic
-        if not greedy:
-            return top1, None
-        flags = torch.nn.functional.pad(choice.greedy, (0, 1), value=True)
-        own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))
-        return top1, own
-
-    def _descend_level_by_level(self, f, ctx, policy, step, new_features=None):
-        """``_descend`` with the policy's ``select`` asked once per level (any policy).
-
-        The choice of the instance at depth ``d`` reads the row's random numbers of level
-        ``d`` (``push=d``); a policy's scores and continuous actions are kept on the stack.
-        ``new_features``: the features ``[B, N, F]`` of new invocations
-        (``graph.start_features``), which the rows whose instance at ``d`` was pushed in this
-        act choose from. On large CPU batches a policy with ``select_rows`` chooses for the
-        rows that choose at a level only (the same choices, fewer values).
-        """
-        g = self.graph
-        ic = g.n_choosers
-        code = self._start_code(f)  # back to instances + 1 (0: none)
-        col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
-        compact = (
-            hasattr(policy, "select_rows")
-            and self.device.type == "cpu"
-            and self.batch_size >= self.COMPACT_ROWS
-        )
-        flags, scores = [], []
-        for level in range(self.depth - 1):
-            node = torch.take(g.inst_node_1, col)
-            at_level = torch.take(g.inst_depth_1, col) == level
-            chooses = torch.take(g.inst_composite_1, col) & at_level
-            seen = ctx
-            if new_features is not None:  # rows whose instance at this level started now
-                started = (level > f["top"])[:, None, None]
-                seen = replace(ctx, features=torch.where(started, new_features, ctx.features))
-            if compact:
-                choice, child = self._choose_rows(seen, policy, step, level, col, node, chooses)
-            else:
-                available = self._available_flat(ctx).index_select(0, self._row_base + node)
-                choice = _as_choice(
-                    policy.select((col - 1).clamp_min(0), seen, available, step, level)
-                )
-                child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
-            if choice.score_index is not None:
-                scores.append((level, chooses, choice))
-            if g.action_dim:
-                self._record_action(f, chooses & ~torch.take(g.inst_composite_1, child), choice)
-            col = torch.where(chooses, child, col)
-            flags.append(choice.greedy | ~chooses)
-        flags.append(torch.ones_like(col, dtype=torch.bool))
-        own = torch.stack(flags, 1)
-        if scores:
-            self._record_scores(f, scores)
-        return col, own
-
-    #: from this many rows on (CPU), the level-by-level choices are made for the rows that
-    #: choose at the level only (``policy.select_rows``)
-    COMPACT_ROWS = 1024
-
-    def _choose_rows(self, ctx, policy, step, level, col, node, chooses):
-        """One level's choices, made for the rows that choose only: ``(choice, child)``.
-
-        ``choice`` holds every row's values (0, greedy, no score where a row does not
-        choose), ``child`` the chosen instance + 1 of every choosing row.
-        """
-        g = self.graph
-        rows = chooses.nonzero().squeeze(1)
-        inst1, node = col.index_select(0, rows), node.index_select(0, rows)
-        available = self._available_flat(ctx).index_select(0, rows * g.n_nodes + node)
-        part = _as_choice(
-            policy.select_rows((inst1 - 1).clamp_min(0), ctx, available, step, level, rows)
-        )
-        child = torch.take(g.inst_children_1, inst1 * g.max_children + part.child)
-
-        def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
-            """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
-            out = values.new_full((col.shape[0], *values.shape[1:]), fill)
-            return out.index_copy(0, rows, values)
-
-        out = Choice(spread(part.child), spread(part.greedy, True))
-        if part.action is not None:
-            out.action = spread(part.action)
-        if part.score_index is not None:
-            out.score_index, out.score_value = spread(part.score_index), spread(part.score_value)
-        return out, spread(child)
-
-    def _available_flat(self, ctx: StepContext) -> torch.Tensor:
-        """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
-        return ctx.available.view(-1, self.graph.max_children)
-
-    def _record_scores(self, f: dict, scores: list) -> None:
-        """Keep each choice's likelihood-ratio term at its level, where the level chose.
-
-        ``scores``: ``(level, chose [B], choice)`` of the levels whose choices carry terms;
-        one write for all levels.
-        """
-        for _, _, choice in scores:
-            if choice.score_index.shape[1] != self.score_width:
-                raise ValueError(
-                    f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
-                    f"the executor keeps score_width={self.score_width}"
-                )
-        old_index, old_value = f["score_index"], f["score_value"]
-        by_level = {level: (chose, choice) for level, chose, choice in scores}
-        none = torch.zeros_like(old_index[:, 0, 0], dtype=torch.bool)
-        chose = torch.stack(
-            [by_level[k][0] if k in by_level else none for k in range(self.depth)], 1
-        )
-        new = [by_level.get(k, (None, None))[1] for k in range(self.depth)]
-        index = torch.stack([c.score_index if c else old_index[:, k] for k, c in enumerate(new)], 1)
-        value = torch.stack([c.score_value if c else old_value[:, k] for k, c in enumerate(new)], 1)
-        f["score_index"] = torch.where(chose[..., None], index, old_index)
-        f["score_value"] = torch.where(chose[..., None], value, old_value)
-
-    @staticmethod
-    def _record_action(f: dict, pushed: torch.Tensor, choice: Choice) -> None:
-        """The action vector of the continuous primitives pushed (``pushed [B]``)."""
-        if choice.action is None:
-            raise GraphError("a continuous primitive was chosen without an action value")
-        f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
 
     def _push(self, f: dict, ctx: StepContext, top1, own_greedy, new_features=None) -> None:
         """The stacks of the instances ``top1 - 1`` on top, with their fresh levels set.
@@ -489,7 +304,7 @@ class HierarchicalExecutor:
                 feats = torch.where(invoked[..., None], new_features.gather(1, at), feats)
             f["start_features"] = torch.where(chose[..., None], feats, f["start_features"])
         if self.config.record_visited:
-            first_visit = chose[..., None] & (self._visit_slots == 0)
+            first_visit = chose[..., None] & (self.writer.visit_slots == 0)
             f["vis_state"] = torch.where(first_visit, f["start_state"][..., None], f["vis_state"])
             f["vis_steps"] = f["vis_steps"].masked_fill(first_visit, 0)
             f["vis_time"] = f["vis_time"].masked_fill(first_visit, 0.0)
@@ -498,6 +313,10 @@ class HierarchicalExecutor:
             started = started.scatter_add(1, node, invoked.float()) > 0
             f["memory"] = torch.where(started[..., None], g.remember_all(ctx.obs), f["memory"])
         self.invoked = invoked  # (counted in the statistics at the next observe)
+
+    #: from this many rows on (CPU), the level-by-level choices are made for the rows that
+    #: choose at the level only (``policy.select_rows``)
+    COMPACT_ROWS = 1024
 
     # ------------------------------------------------------------------ observing
     def observe(
@@ -546,9 +365,9 @@ class HierarchicalExecutor:
         batch = None
         if transitions:
             child_done = ended_own.roll(-1, 1) & emit
-            batch = self._transitions(f, step, ctx, emit, child_done, terminal, trunc, taught, ran)
+            batch = self.writer.emit(f, step, ctx, emit, child_done, terminal, trunc, taught, ran)
         if self.config.record_visited:
-            self._record_visits(f, chose & ~child_ended, ctx, node)
+            self.writer.record_visits(f, chose & ~child_ended, ctx, node)
 
         if self.count_stats:
             self.stats.count(node, self.invoked, popped, ended_own, f["inv_steps"])
@@ -633,104 +452,6 @@ class HierarchicalExecutor:
             )
         return timeout
 
-    def _record_visits(self, f: dict, continuing, ctx: StepContext, node) -> None:
-        """Append ``s'`` to the visit buffer of the levels whose child goes on.
-
-        ``s'`` is abstracted for each level's node; visit ``k`` of a child lives in slot
-        ``k % L``.
-        """
-        size = self.config.record_visited
-        slot = (f["steps"] % size).unsqueeze(-1)  # steps already counts this step: visit index
-        here = continuing[..., None] & (self._visit_slots == slot)
-        state = ctx.abstract.gather(1, node)
-        for key, value in (
-            ("vis_state", state),
-            ("vis_steps", f["steps"]),
-            ("vis_time", f["time"]),
-        ):
-            f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
-
-    def _transitions(self, f, step, ctx, emit, child_done, terminal, trunc, real, ran):
-        """The finished SMDP transitions of this step (see the module docstring)."""
-        g, b, node = self.graph, self.batch_size, f["node"]
-        if g.internal_nodes:
-            pseudo = g.internal_rewards_at_termination(ctx.obs, f["memory"]).gather(1, node)
-            pseudo = pseudo * terminal
-        else:
-            pseudo = self._no_reward
-        level = {
-            "valid": emit,
-            "inst": f["inst"],
-            "node": node,
-            "child": f["child"],
-            "state": f["start_state"],
-            "steps": f["steps"],
-            "duration": f["time"],
-            "reward": f["reward"],
-            "discounted_reward": f["disc_reward"],
-            "internal_reward": f["internal"],
-            "pseudo_reward": pseudo,
-            "terminal": terminal,
-            "child_done": child_done,
-            "ran": ran,
-        }
-        uses = self.uses
-        if "parent_inst" in uses:
-            level["parent_inst"] = _shift_right(f["inst"], fill=-1)
-        if "next_state" in uses:
-            level["next_state"] = ctx.abstract.gather(1, node)
-        if "truncated" in uses:
-            level["truncated"] = trunc[:, None] & emit & ~terminal  # (a termination: terminal)
-        if "greedy" in uses:
-            level["greedy"], level["own_greedy"] = f["greedy"], f["own_greedy"]
-        if ctx.features is not None:
-            level["features"] = f["start_features"]
-            level["next_features"] = ctx.features.gather(
-                1, node[..., None].expand(-1, -1, ctx.features.shape[2])
-            )
-        if self.score_width:
-            level["score_index"] = f["score_index"]
-            level["score_value"] = f["score_value"]
-        if self.config.record_visited:
-            level.update(
-                visited_state=f["vis_state"],
-                visited_steps=f["vis_steps"],
-                visited_time=f["vis_time"],
-                visited_valid=self._visit_slots
-                < f["steps"].clamp_max(self.config.record_visited)[..., None],
-            )
-        size = torch.Size([b])
-        return TensorDict._new_unsafe(
-            {
-                "learner": self.learner,
-                LEVEL: TensorDict._new_unsafe(level, batch_size=torch.Size([b, self.depth])),
-                PRIMITIVE: TensorDict._new_unsafe(self._primitive(f, step, real, ran), size),
-            },
-            batch_size=size,
-        )
-
-    def _primitive(self, f: dict, step: dict, real, ran) -> dict:
-        """The fields of the primitive step each row just took (``batch[PRIMITIVE]``).
-
-        ``ran [B, D]`` marks the level of the primitive (its ``state`` reads 0 where the step
-        teaches nothing). Only ``reward`` and ``duration`` unless ``"primitive"`` is used.
-        """
-        out = {"reward": step["reward"], "duration": step["duration"]}
-        if "primitive" not in self.uses:
-            return out
-        g, top = self.graph, f["top"]
-        top1 = f["inst"].amax(1) + 1  # the instance on top, + 1
-        out.update(
-            valid=real & (top >= 0),
-            inst=top1 - 1,
-            node=torch.take(g.inst_node_1, top1),
-            state=(f["start_state"] * ran).sum(1),
-            action=f["cont_action"] if g.action_dim else torch.take(g.inst_action_1, top1),
-        )
-        if "greedy" in self.uses:
-            out["greedy"] = f["own_greedy"].all(1)  # the levels at and above the top hold True
-        return out
-
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
         """The Task-Stacks and the last action and observation, for exact resume."""
@@ -789,13 +510,6 @@ def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch
     return torch.stack(rows).to(depth_1.device), code
 
 
-def _as_choice(out) -> Choice:
-    """A policy's ``select`` result as a ``Choice`` (tuples ``(child, greedy[, action])``)."""
-    if isinstance(out, Choice):
-        return out
-    return Choice(out[0], out[1], out[2] if len(out) > 2 else None)
-
-
 def _raise_stuck(g: TaskGraph, stuck: torch.Tensor, node: torch.Tensor) -> None:
     """A subtask that must choose but has no available child is a graph error."""
     row, level = (int(v) for v in stuck.nonzero()[0])
@@ -808,11 +522,6 @@ def _raise_stuck(g: TaskGraph, stuck: torch.Tensor, node: torch.Tensor) -> None:
 def _shift_left(x: torch.Tensor) -> torch.Tensor:
     """``out[:, k] = x[:, k + 1]``; the last column gets 0 (False)."""
     return torch.nn.functional.pad(x[:, 1:], (0, 1))
-
-
-def _shift_right(x: torch.Tensor, fill=0) -> torch.Tensor:
-    """``out[:, k] = x[:, k - 1]``; the first column gets ``fill``."""
-    return torch.nn.functional.pad(x[:, :-1], (1, 0), value=fill)
 
 
 class ExecutorStats:
@@ -852,9 +561,9 @@ class ExecutorStats:
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """The counters since the last log (a resumed run logs what it would have)."""
-        return {k: getattr(self, k).clone() for k in self.FIELDS}
+        return {k: self._by_field[i].clone() for i, k in enumerate(self.FIELDS)}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         """Restore ``state_dict``."""
         for k, v in state.items():
-            getattr(self, k).copy_(v)
+            self._by_field[self.FIELDS.index(k)].copy_(v)

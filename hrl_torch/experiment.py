@@ -1,9 +1,8 @@
-"""Domains, algorithms and one function that runs an experiment into a run folder.
+"""One function that runs an experiment into a run folder, and what it builds on the way.
 
-A domain module (in ``agents/``) describes itself with a ``DomainSpec``: how to build its env
-for a list of seeds, and per algorithm an ``AlgoSpec`` (graph, learner, exploration, default
-budget). ``hrl_torch.registry`` finds domains by name; ``run_experiment`` is what the CLI and the
-experiment scripts call.
+A domain (``hrl_torch.domain.DomainSpec``, re-exported here with ``AlgoSpec`` and
+``algo_family``) names its env and algorithms; ``build_trainer`` wires one algorithm up and
+``run_experiment`` (what the CLI and the experiment scripts call) trains it into a run folder.
 """
 
 from __future__ import annotations
@@ -11,106 +10,24 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
 
-from hrl_torch import __version__
+from hrl_torch import __version__, registry
 from hrl_torch.checkpoint import load_checkpoint
+from hrl_torch.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family  # noqa: F401 (re-exported)
 from hrl_torch.envcheck import check_env
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.exploration import Exploration
-from hrl_torch.graph import TaskGraph
-from hrl_torch.learners.base import Learner
 from hrl_torch.multiagent import MultiAgentConfig
+from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.multiagent_factory import MultiAgentFactory
 from hrl_torch.plots import plot_curves
 from hrl_torch.rng import check_seeds
 from hrl_torch.runlock import RunLock
-from hrl_torch.runlog import RunLogger, code_version, make_run_dir
-from hrl_torch.trainer import TrainConfig, Trainer, hparams_of
-
-EnvFactory = Callable[[Sequence[int], int, str], object]
-
-
-@dataclass
-class AlgoSpec:
-    """One algorithm on one domain.
-
-    Attributes:
-        make_graph: builds the task graph (a flat graph for flat learners).
-        make_learner: ``(graph, n_learners) -> Learner``.
-        make_exploration: ``(train_config) -> Exploration`` (schedules may read the budget).
-        train: default training options.
-        envs_per_learner: default ``E``.
-        executor: executor options.
-        description: one line for ``hrl-torch list``.
-        multiagent: on a multi-agent domain, how the agents cooperate (``None``: selfish agents
-            with their own tables); ``make_learner`` then gets the number of table sets.
-        env_options: keyword arguments of the domain's ``make_env`` for this algorithm (e.g.
-            one agent instead of four).
-    """
-
-    make_graph: Callable[[], TaskGraph]
-    make_learner: Callable[[TaskGraph, int], Learner]
-    make_exploration: Callable[[TrainConfig], Exploration]
-    train: TrainConfig = field(default_factory=TrainConfig)
-    envs_per_learner: int = 64
-    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
-    description: str = ""
-    multiagent: MultiAgentConfig | None = None
-    env_options: dict = field(default_factory=dict)
-
-
-def algo_family(**shared) -> Callable[..., AlgoSpec]:
-    """A domain's ``AlgoSpec`` maker with the fields its algorithms share bound once.
-
-    ``shared`` are ``AlgoSpec`` fields (learner, exploration, budget, ...); the maker takes
-    ``(make_graph, description, multiagent=None, **env_options)``, the fields that differ.
-    """
-
-    def spec(make_graph, description: str, multiagent=None, **env_options) -> AlgoSpec:
-        return AlgoSpec(
-            make_graph=make_graph,
-            description=description,
-            multiagent=multiagent,
-            env_options=env_options,
-            **shared,
-        )
-
-    return spec
-
-
-@dataclass
-class DomainSpec:
-    """A domain: its env factory, backends, algorithms and reference values.
-
-    Attributes:
-        name: CLI name (``hrl-torch train NAME``).
-        make_env: ``(seeds, envs_per_learner, backend) -> env``.
-        algos: algorithm name -> spec.
-        backends: env backends ``make_env`` accepts (``"torch"`` first).
-        eval_seed: seed of the common evaluation episodes (the same for every learner).
-        reference: named reference values drawn on the plots (e.g. the optimal return).
-        description: one line for ``hrl-torch list``.
-        make_evaluator: ``(train_config) -> evaluator`` replacing the episodic evaluation
-            (continuing tasks: ``hrl_torch.continuing.ThroughputEvaluator``); the eval env then
-            has ``eval_episodes`` rows per learner.
-        make_eval_env: the evaluation env's factory when it differs from the training env's
-            (e.g. training restarts a continuing task now and then to see every start
-            state; evaluation measures the long run without restarts). Default: ``make_env``.
-    """
-
-    name: str
-    make_env: EnvFactory
-    algos: dict[str, AlgoSpec]
-    backends: tuple[str, ...] = ("torch",)
-    eval_seed: int = 1_000_003
-    reference: dict[str, float] = field(default_factory=dict)
-    description: str = ""
-    make_evaluator: Callable[[TrainConfig], object] | None = None
-    make_eval_env: EnvFactory | None = None
+from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir
+from hrl_torch.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
 
 @dataclass
@@ -197,23 +114,10 @@ def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
     return domain.algos[algo]
 
 
-def effective_train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
-    """The algorithm's ``TrainConfig`` with the run's options applied (what the run uses)."""
-    changes = {
-        k: getattr(opts, k)
-        for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
-        if getattr(opts, k) is not None
-    }
-    config = replace(spec.train, progress=opts.progress, **changes)
-    if opts.check_leaf_rewards:
-        config.check_leaf_rewards = True
-    return config
-
-
 def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
     """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
     spec = check_choice(domain, algo, opts.backend)
-    config = effective_train_config(spec, opts)
+    config = _train_config(spec, opts)
     schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
     n_envs = opts.envs_per_learner or spec.envs_per_learner
@@ -225,9 +129,10 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
     graph = spec.make_graph().to(opts.device)
-    sets = len(seeds)
-    if hasattr(env, "n_agents"):  # a multi-agent domain: table sets per seed and agent
-        sets = (spec.multiagent or MultiAgentConfig()).table_sets(len(seeds), env.n_agents)
+    agents = None
+    if isinstance(env, MultiAgentBatchedEnv):  # table sets per seed and agent
+        agents = MultiAgentFactory(env.n_agents, spec.multiagent or MultiAgentConfig())
+    sets = len(seeds) if agents is None else agents.table_sets(len(seeds))
     learner = spec.make_learner(graph, sets).to(opts.device)
     env = env.to(opts.device)
     eval_env = None if eval_env is None else eval_env.to(opts.device)
@@ -243,7 +148,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         logger,
         evaluator,
         collector=opts.collector,
-        multiagent=spec.multiagent,
+        agent_factory=agents,
     )
     trainer.run_config = {
         "domain": domain.name,
@@ -263,6 +168,20 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         "code": code_version(),
     }
     return trainer
+
+
+def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
+    """The algorithm's ``TrainConfig`` with the options ``opts`` sets."""
+    given = asdict(opts)
+    changes = {
+        k: given[k]
+        for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
+        if given[k] is not None
+    }
+    config = replace(spec.train, progress=opts.progress, **changes)
+    if opts.check_leaf_rewards:
+        config.check_leaf_rewards = True
+    return config
 
 
 def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
@@ -296,7 +215,7 @@ def check_domain_env(domain: DomainSpec, algo: str, backend: str = "torch") -> N
         return domain.make_env(seeds, e, backend, **spec.env_options)
 
     env = make([0], 2)
-    graph = None if hasattr(env, "n_agents") else spec.make_graph()
+    graph = None if isinstance(env, MultiAgentBatchedEnv) else spec.make_graph()
     check_env(env, graph, make_env=make if backend == "torch" else None, steps=32)
 
 
@@ -329,7 +248,7 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
         domain=domain.name,
         algo=algo,
         options=opts,
-        train=effective_train_config(spec, opts),
+        train=_train_config(spec, opts),
         executor=spec.executor,
         envs_per_learner=opts.envs_per_learner or spec.envs_per_learner,
         code=code_version(),
@@ -339,17 +258,13 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start
     logger.close()
-    metrics, units = ["charts/eval_return", "charts/episode_return"], {}
-    if trainer.evaluator is not None:  # continuing tasks
-        metrics = trainer.evaluator.metrics
-        units = {tag: trainer.evaluator.unit for tag in trainer.evaluator.throughput_tags}
     plots = plot_curves(
         run_dir / "progress.csv",
-        metrics,
+        trainer.evaluator.metrics,
         run_dir,
         title=f"{domain.name} / {algo}",
         reference=domain.reference,
-        units=units,
+        units=trainer.evaluator.units,
     )
     summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
     logger.write_summary(summary)
@@ -406,7 +321,7 @@ def _summary(domain, algo, opts, trainer, result, wall: float, plots, run_dir: P
                 # all seeds train together: each seed's share of the population's time
                 "wall_seconds": round(result.train_seconds, 3),
                 "env_steps_per_second": round(result.env_steps_per_second / len(opts.seeds), 1),
-                **(trainer.evaluator.summary(k) if trainer.evaluator is not None else {}),
+                **trainer.evaluator.summary(k),
             }
             for k, s in enumerate(opts.seeds)
         ],
@@ -421,8 +336,6 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     ``None`` for continuing domains, whose evaluation is a throughput). ``episodes`` changes
     the number of evaluation episodes per seed (default: the run's). Nothing is written.
     """
-    from hrl_torch import registry
-
     path = Path(run_dir) / "checkpoint.pt"
     state = load_checkpoint(path)
     if "run" not in state:
@@ -435,7 +348,7 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     trainer = build_trainer(domain, run["algo"], opts)
     trainer.learner.load_state_dict(state["trainer"]["learner"])
     trainer.step = int(state["trainer"]["step"])
-    if trainer.evaluator is not None:  # continuing: greedy throughput per seed
+    if trainer.evaluator.continuing:  # continuing: greedy throughput per seed
         return trainer, None
     return trainer, trainer.evaluate_episodes()
 

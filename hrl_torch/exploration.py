@@ -6,7 +6,8 @@ choice is greedy (the flag the average-reward learners use to update their gains
 non-random actions). Taking pre-drawn uniforms keeps the random stream of a row independent of
 how many other rows needed a decision.
 Schedules are functions of the learner's env-step count, so every learner of a population sees
-the same exploration rate at the same point of its own training.
+the same exploration rate at the same point of its own training; ``TriggeredEpsilon`` (Section
+5.3's hybrid) is a per-learner epsilon that starts decaying when a domain's monitor says so.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+from torch import nn
 
 from hrl_torch.ops import argmax_last
 
@@ -145,3 +147,39 @@ class Boltzmann:
 
 
 Exploration = Greedy | EpsilonGreedy | Boltzmann
+
+
+class TriggeredEpsilon(nn.Module):
+    """Per-learner epsilon: ``start`` until a trigger, then ``start / factor ** (n // every)``.
+
+    ``n`` counts the learner's episodes since its trigger fired (Section 5.3: 0.1, 1.01, 50).
+
+    Args:
+        n_learners: population size ``P``.
+        start: initial epsilon.
+        factor: divisor per ``every`` episodes after the trigger.
+        every: episodes per division.
+    """
+
+    def __init__(
+        self, n_learners: int, start: float = 0.1, factor: float = 1.01, every: int = 50
+    ) -> None:
+        super().__init__()
+        self.start, self.factor, self.every = float(start), float(factor), int(every)
+        self.register_buffer("episodes", torch.zeros(n_learners, dtype=torch.long))
+        self.register_buffer("fired_at", torch.full((n_learners,), -1, dtype=torch.long))
+
+    def observe(self, episodes_ended: torch.Tensor, trigger: torch.Tensor) -> None:
+        """Count finished episodes ``[P]``; learners whose ``trigger [P]`` holds start decaying."""
+        self.episodes += episodes_ended.long()
+        fire = trigger & (self.fired_at < 0)
+        self.fired_at = torch.where(fire, self.episodes, self.fired_at)
+
+    def values(self) -> torch.Tensor:
+        """Epsilon per learner ``[P]``."""
+        since = (self.episodes - self.fired_at).clamp_min(0) // self.every
+        decay = self.factor ** since.double()
+        eps = torch.where(
+            self.fired_at >= 0, self.start / decay, torch.full_like(decay, self.start)
+        )
+        return eps.float()

@@ -191,6 +191,8 @@ class PolicyHead(Head):
     def __init__(self, name: str, n_states: int, n_cols: int) -> None:
         super().__init__(name)
         self.n_states, self.n_cols = int(n_states), int(n_cols)
+        #: the columns in use (a subclass whose block is wider than its choices narrows it)
+        self.n_children = self.n_cols
         self.table = -1
         object.__setattr__(self, "_bank", None)
 

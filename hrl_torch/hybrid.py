@@ -7,120 +7,29 @@ actions). Both see every transition batch and learn only from their own nodes' t
 ``HybridPolicy`` makes the executor's choices: per env row, the value learner's action values
 with exploration where the node is value-based, the PG policy where it is not.
 
-Section 5.3's exploration schedule is ``TriggeredEpsilon``: epsilon stays at 0.1 until the
-low-level subtasks perform well enough (a domain ``Monitor`` decides), then it is divided by
-1.01 every 50 episodes, per learner of the population.
-
-``EpisodeBins`` keeps per-learner sums over consecutive blocks of events (e.g. "successes per
-1000 episodes", "low-level successes per 1000 executions"): each finished event gets its index
-within its learner, so blocks are exact however many envs a learner runs.
+Section 5.3's exploration schedule is ``hrl_torch.exploration.TriggeredEpsilon``: epsilon
+stays at 0.1 until the low-level subtasks perform well enough (a domain's
+``hrl_torch.progress.Monitor`` decides), then it is divided by 1.01 every 50 episodes, per
+learner of the population. (Both, and ``EpisodeBins``, are re-exported here.)
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
-from typing import Protocol
 
 import torch
 from torch import nn
 
 from hrl_torch.executor import Choice
-from hrl_torch.exploration import Exploration, Greedy, uniform_choice
+from hrl_torch.exploration import (  # noqa: F401  (TriggeredEpsilon: re-exported)
+    Exploration,
+    Greedy,
+    TriggeredEpsilon,
+    uniform_choice,
+)
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg import HPGRLLearner
+from hrl_torch.progress import EpisodeBins, Monitor  # noqa: F401  (re-exported)
 from hrl_torch.rng import LevelDraws
-
-
-class TriggeredEpsilon(nn.Module):
-    """Per-learner epsilon: ``start`` until a trigger, then ``start / factor ** (n // every)``.
-
-    ``n`` counts the learner's episodes since its trigger fired (Section 5.3: 0.1, 1.01, 50).
-
-    Args:
-        n_learners: population size ``P``.
-        start: initial epsilon.
-        factor: divisor per ``every`` episodes after the trigger.
-        every: episodes per division.
-    """
-
-    def __init__(
-        self, n_learners: int, start: float = 0.1, factor: float = 1.01, every: int = 50
-    ) -> None:
-        super().__init__()
-        self.start, self.factor, self.every = float(start), float(factor), int(every)
-        self.register_buffer("episodes", torch.zeros(n_learners, dtype=torch.long))
-        self.register_buffer("fired_at", torch.full((n_learners,), -1, dtype=torch.long))
-
-    def observe(self, episodes_ended: torch.Tensor, trigger: torch.Tensor) -> None:
-        """Count finished episodes ``[P]``; learners whose ``trigger [P]`` holds start decaying."""
-        self.episodes += episodes_ended.long()
-        fire = trigger & (self.fired_at < 0)
-        self.fired_at = torch.where(fire, self.episodes, self.fired_at)
-
-    def values(self) -> torch.Tensor:
-        """Epsilon per learner ``[P]``."""
-        since = (self.episodes - self.fired_at).clamp_min(0) // self.every
-        decay = self.factor ** since.double()
-        eps = torch.where(
-            self.fired_at >= 0, self.start / decay, torch.full_like(decay, self.start)
-        )
-        return eps.float()
-
-
-class Monitor(Protocol):
-    """Domain knowledge about a hybrid's progress, fed every transition batch."""
-
-    def observe(self, batch) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(episodes ended per learner [P], epsilon trigger per learner [P] bool)``."""
-        ...
-
-
-class EpisodeBins(nn.Module):
-    """Per-learner sums of event values over consecutive blocks of ``size`` events.
-
-    Args:
-        n_learners: population size ``P``.
-        size: events per block (e.g. 1000 episodes).
-        n_bins: blocks kept; later events go to an overflow block.
-        fields: names of the summed values (``count`` is kept too).
-    """
-
-    def __init__(self, n_learners: int, size: int, n_bins: int, fields: Sequence[str]) -> None:
-        super().__init__()
-        self.size, self.n_bins, self.fields = int(size), int(n_bins), list(fields)
-        self.register_buffer("events", torch.zeros(n_learners, dtype=torch.long))
-        self.register_buffer("sums", torch.zeros(len(self.fields) + 1, n_learners, n_bins + 1))
-
-    def add(self, ended: torch.Tensor, values: dict[str, torch.Tensor]) -> None:
-        """Add the events of the rows where ``ended [B]`` (rows grouped by learner).
-
-        ``values``: ``{field: [B]}``; an event of row ``b`` is numbered after the learner's
-        earlier events and after the events of rows ``< b`` of the same learner.
-        """
-        p = self.events.shape[0]
-        per = ended.view(p, -1).long()
-        rank = per.cumsum(1) - 1 + self.events[:, None]
-        block = (rank // self.size).clamp(0, self.n_bins)
-        flat = (torch.arange(p, device=ended.device)[:, None] * (self.n_bins + 1) + block).view(-1)
-        weight = ended.float()
-        stacked = torch.stack([weight] + [values[f].float() * weight for f in self.fields])
-        self.sums.view(len(self.fields) + 1, -1).index_add_(1, flat, stacked)
-        self.events += per.sum(1)
-
-    def completed(self) -> torch.Tensor:
-        """Blocks completed per learner ``[P]``."""
-        return (self.events // self.size).clamp_max(self.n_bins)
-
-    def block_means(self) -> dict[str, torch.Tensor]:
-        """``{field: [P, n_bins]}`` mean value per event of each block (NaN while empty)."""
-        count = self.sums[0, :, : self.n_bins]
-        return {
-            f: torch.where(
-                count > 0, self.sums[k + 1, :, : self.n_bins] / count.clamp_min(1), torch.nan
-            )
-            for k, f in enumerate(self.fields)
-        }
 
 
 class HybridLearner(Learner):
@@ -147,11 +56,9 @@ class HybridLearner(Learner):
     ) -> None:
         super().__init__(graph, n_learners)
         pg_nodes = set((pg.node_group >= 0).nonzero().flatten().tolist())
-        value_nodes = (
-            set(value.value_node.nonzero().flatten().tolist())
-            if hasattr(value, "value_node")
-            else set(graph.subtasks()) - pg_nodes
-        )
+        value_nodes = value.value_nodes()
+        if value_nodes is None:  # a value learner of every node: those that are not PG's
+            value_nodes = set(graph.subtasks()) - pg_nodes
         both = pg_nodes & value_nodes
         if both:
             raise GraphError(f"nodes {[graph.names[k] for k in both]} have two learners")

@@ -15,6 +15,8 @@ deterministic-reward domains, or read its reports as "check this abstraction".
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 
 from hrl_torch.executor import PRIMITIVE
@@ -65,3 +67,8 @@ class LeafRewardMonitor:
                 "states, give it an abstraction that separates them"
             )
         return lines
+
+    def warn(self) -> None:
+        """Warn once about each primitive and abstract state newly over the tolerance."""
+        for line in self.new_violations():
+            warnings.warn(line, stacklevel=3)  # the trainer's caller

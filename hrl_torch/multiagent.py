@@ -47,7 +47,8 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.executor import Choice, ExecutorConfig, _as_choice
+from hrl_torch.executor import Choice, ExecutorConfig
+from hrl_torch.executor import as_choice as _as_choice
 from hrl_torch.exploration import Exploration
 from hrl_torch.graph import GraphError, StepContext, Subtask, TaskGraph
 from hrl_torch.learners.base import Learner
@@ -398,7 +399,7 @@ class MultiAgentAgent(HierarchicalAgent):
         ended = popped[:, child] & ended_own[:, : child + 1].any(1)  # its U_l subtask ended
         others_ended = ended.view(-1, n).any(1).repeat_interleave(n) & ~ended
         self._pending = self._pending | others_ended
-        acting = self.executor._acting
+        acting = self.executor.acting
         now = self._pending & (acting if acting is not None else torch.ones_like(ended))
         self._pending = self._pending & ~now
         cut = torch.zeros_like(popped)

@@ -15,7 +15,7 @@ import importlib
 import sys
 from importlib.metadata import entry_points
 
-from hrl_torch.experiment import DomainSpec
+from hrl_torch.domain import DomainSpec
 
 ENTRY_POINT_GROUP = "hrl_torch.domains"
 

@@ -37,6 +37,8 @@ def check_seeds(seeds: Sequence[int]) -> list[int]:
     if len(set(seeds)) < len(seeds):
         raise ValueError(f"seeds must be distinct (each names one learner), got {seeds}")
     return seeds
+
+
 _MULT = 0x045D9F3B  # < 2**27, so (x < 2**32) * _MULT stays below 2**63
 
 

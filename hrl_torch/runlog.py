@@ -23,6 +23,7 @@ import subprocess
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,19 @@ def code_version() -> dict:
             out["dirty"] = bool(status.stdout.strip()) if status.returncode == 0 else None
     except (OSError, subprocess.TimeoutExpired):  # no git here: the version alone
         pass
+    return out
+
+
+def hparams_of(**parts) -> dict:
+    """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
+    out = {}
+    for name, value in parts.items():
+        if is_dataclass(value):
+            out.update({f"{name}.{k}": v for k, v in asdict(value).items()})
+        elif callable(value):
+            out[name] = getattr(value, "__name__", repr(value))
+        else:
+            out[name] = value
     return out
 
 

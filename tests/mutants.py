@@ -484,9 +484,9 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "eval-rng-not-restarted",
-        "hrl_torch/trainer.py",
-        'agent = self.evaluation_agent(env, "eval-explore")',
-        'agent = self.evaluation_agent(env, f"eval-explore-{self.step}")',
+        "hrl_torch/evaluation.py",
+        'agent = trainer.evaluation_agent(env, "eval-explore")',
+        'agent = trainer.evaluation_agent(env, f"eval-explore-{trainer.step}")',
         "greedy evaluation's tie-breaking draws differ from one evaluation to the next",
         ("tests/test_population.py",),
     ),
@@ -540,9 +540,9 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "last-evaluation-not-restored",
-        "hrl_torch/trainer.py",
-        'self._last_success = [float(x) for x in last.get("success", [])]',
-        "self._last_success = []",
+        "hrl_torch/evaluation.py",
+        'self.last_success = [float(x) for x in last.get("success", [])]',
+        "self.last_success = []",
         "a finished run resumed has no result (its latest evaluation was not saved)",
         ("tests/test_checkpoint.py",),
     ),
@@ -606,7 +606,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-scan-going-not-updated",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "chooses = torch.take(g.inst_composite_1, col) & at_level",
         "chooses = at_level",
         "the level-by-level descent goes on choosing below the primitive on top",
@@ -670,7 +670,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-group-slice-short",
-        "hrl_torch/tables.py",
+        "hrl_torch/eval_plan.py",
         "cached = [rows + kids.view(-1, self.cols.shape[0]) for kids in self.group_children]",
         "cached = [rows + kids.view(-1, self.cols.shape[0]).roll(1, 0) "
         "for kids in self.group_children]",
@@ -679,7 +679,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-evaluates-primitives",
-        "hrl_torch/tables.py",
+        "hrl_torch/eval_plan.py",
         "groups = layout.groups[1:]",
         "groups = layout.groups[0:]",
         "the EvalPlan also evaluates the primitive tables (their values overwritten by 0)",
@@ -759,9 +759,9 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "stats-of-first-table-sets",
-        "hrl_torch/trainer.py",
-        "return counts.view(self.P, -1, *counts.shape[1:]).sum(1)",
-        "return counts[: self.P]",
+        "hrl_torch/metrics.py",
+        "return counts.view(n_learners, -1, *counts.shape[1:]).sum(1)",
+        "return counts[:n_learners]",
         "a multi-agent run logs the first P table sets' statistics as the seeds'",
         ("tests/agents/test_two_taxi_graph.py",),
     ),
@@ -824,7 +824,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "eval-records-root-level",
-        "hrl_torch/trainer.py",
+        "hrl_torch/evaluation.py",
         'new = executor.invoked[:, 1] & ~now["finished"]',
         'new = executor.invoked[:, 0] & ~now["finished"]',
         "evaluation records the root's own invocation, not its decisions",
@@ -849,7 +849,7 @@ MUTANTS: list[Mutant] = [
     # -- the hot path of issue 9 (path tables, descent, shared stores, blocks of draws)
     Mutant(
         "graph-path-child-slots-zero",
-        "hrl_torch/graph.py",
+        "hrl_torch/graph_compile.py",
         "level, slot, i = level - 1, inst_slot[i], inst_parent[i]",
         "level, slot, i = level - 1, 0, inst_parent[i]",
         "the path tables record child slot 0 for every level of a stack",
@@ -865,7 +865,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-descent-one-round-short",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "        for _ in range(self.depth - 1):\n"
         "            code = torch.take(nxt, self._code_base + code)",
         "        for _ in range(self.depth - 2):\n"
@@ -875,7 +875,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-descent-greedy-of-row-zero",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))",
         "own = torch.take(flags, g.path_chooser_1.index_select(0, top1))",
         "every row's greedy flags are read from the first row's choices",
@@ -907,7 +907,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-compact-children-unscattered",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "            return out.index_copy(0, rows, values)",
         "            return out.index_copy(0, rows.flip(0), values)",
         "choices made for the choosing rows only are scattered back to the wrong rows",
@@ -939,7 +939,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-per-state-without-learner",
-        "hrl_torch/tables.py",
+        "hrl_torch/eval_plan.py",
         "return blocked, dead, index + self.learner_base(ctx.learner, bank.stride, 3)",
         "return blocked, dead, index",
         "on a tabulated graph every learner reads the first learner's tables",

@@ -119,7 +119,7 @@ def make(domain: str, algo: str, logger: RunLogger):
     # knobs RunOptions does not expose, shrunk for speed (the same for every run of a case)
     trainer.config.log_every = LOG_EVERY
     trainer.config.eval_max_steps = EVAL_MAX_STEPS
-    if trainer.evaluator is not None:
+    if trainer.evaluator.continuing:
         trainer.evaluator.horizon, trainer.evaluator.burn_in = EVAL_HORIZON, EVAL_BURN_IN
         trainer.evaluator.horizon_time = None  # timed windows (event-driven envs): too long
     return trainer
@@ -186,7 +186,7 @@ def buffers(trainer) -> dict:
 
 def assert_checkpoint_inside_subtasks(trainer, domain: str) -> None:
     """The Task-Stacks hold state a checkpoint must carry: mid-episode, mid-subtask."""
-    assert bool((trainer._episodes.length > 0).any()), "checkpoint at an episode boundary"
+    assert bool((trainer.episodes.length > 0).any()), "checkpoint at an episode boundary"
     s = trainer.executor.stack
     if trainer.executor.depth <= 2:  # a flat graph: the root's child is always a primitive
         return

@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import torch
 
 from hrl_torch.analysis.chains import F64, FiniteModel
-from hrl_torch.analysis.hierarchy import _Unrolled
+from hrl_torch.analysis.hierarchy import Unrolled
 from hrl_torch.graph import GraphError, TaskGraph
 
 MAX_NODE_IRRELEVANCE = "max-node irrelevance"
@@ -104,7 +104,7 @@ def check_abstractions(
     """
     if graph.memory_nodes:
         raise GraphError("abstraction checks need predicates of the state alone (no memory)")
-    u = _Unrolled(graph, model, starts)
+    u = Unrolled(graph, model, starts)
     pseudo = graph.internal_rewards_at_termination(model.observations).to(F64)  # [S, nodes]
     found = _leaf_irrelevance(u)
     for i in graph.subtasks():
@@ -113,7 +113,7 @@ def check_abstractions(
 
 
 # --------------------------------------------------------------------------- Condition 2
-def _leaf_irrelevance(u: _Unrolled) -> list[Violation]:
+def _leaf_irrelevance(u: Unrolled) -> list[Violation]:
     """Primitives whose abstract state mixes different expected rewards ``r[s, a]``."""
     g, found = u.graph, []
     pushed = torch.zeros(g.n_nodes, u.n, dtype=torch.bool)  # where a parent can push the node
@@ -145,7 +145,7 @@ def _leaf_irrelevance(u: _Unrolled) -> list[Violation]:
 
 
 # --------------------------------------------------------------------------- Conditions 1, 3, 4
-def _completions(u: _Unrolled, i: int, pseudo: torch.Tensor, gamma: float) -> list[Violation]:
+def _completions(u: Unrolled, i: int, pseudo: torch.Tensor, gamma: float) -> list[Violation]:
     """Merged decision states of ``i`` where some ``C(i, s, j)`` can differ."""
     g, found = u.graph, []
     x = u.abstract[i]
@@ -176,7 +176,7 @@ def _completions(u: _Unrolled, i: int, pseudo: torch.Tensor, gamma: float) -> li
     return found
 
 
-def _bisimulation(u: _Unrolled, i: int, pseudo: torch.Tensor) -> torch.Tensor:
+def _bisimulation(u: Unrolled, i: int, pseudo: torch.Tensor) -> torch.Tensor:
     """Block ``[S]`` of every full state in the coarsest bisimulation of ``i``'s run.
 
     Labels: whether ``i`` ended (and its pseudo-reward there); elsewhere the abstract state,
@@ -221,7 +221,7 @@ def _bisimulation(u: _Unrolled, i: int, pseudo: torch.Tensor) -> torch.Tensor:
         blocks = finer
 
 
-def _results(u: _Unrolled, i: int, j: int, cand, pseudo, gamma: float):
+def _results(u: Unrolled, i: int, j: int, cand, pseudo, gamma: float):
     """Where child ``j`` of ``i`` ends from each state of ``cand``, as ``i`` values it.
 
     Outcomes are full states, except that the states where ``i`` ends count as one outcome per
@@ -254,7 +254,7 @@ def _results(u: _Unrolled, i: int, j: int, cand, pseudo, gamma: float):
     return torch.where(single, first, no_key), hit, values
 
 
-def _reachable_ends(u: _Unrolled, i: int, j: int, cand, column, width: int) -> torch.Tensor:
+def _reachable_ends(u: Unrolled, i: int, j: int, cand, column, width: int) -> torch.Tensor:
     """Outcomes ``[n, width]`` child ``j`` of ``i`` can end in from ``cand``, under any policy.
 
     The run of one instance ``k`` of ``j`` on the Task-Stack: from a decision state ``(q, s)``

@@ -107,14 +107,14 @@ def markov_chain_gain(transition: torch.Tensor, reward: torch.Tensor) -> ChainGa
     return ChainGain(gain, label, class_gain)
 
 
-def _first_best(q: torch.Tensor, ok: torch.Tensor, dim: int, tol: float):
+def first_best(q: torch.Tensor, ok: torch.Tensor, dim: int, tol: float):
     """Max over ``dim`` of ``q`` where ``ok`` and the first index within ``tol`` of it."""
     q = q.masked_fill(~ok, -torch.inf)
     best = q.amax(dim)
     return best, (q >= best.unsqueeze(dim) - tol).to(F64).argmax(dim)
 
 
-def _rvi(bellman, h: torch.Tensor, live: torch.Tensor, opt: SolverOptions):
+def rvi(bellman, h: torch.Tensor, live: torch.Tensor, opt: SolverOptions):
     """Relative value iteration with the aperiodicity transform ``h + tau (T h - h)``.
 
     ``bellman(h)`` returns ``(T h, ...)``. Returns ``(h, bellman(h), (lo, hi))`` where
@@ -146,13 +146,13 @@ class FlatResult:
     policy: torch.Tensor
 
 
-def _table_rvi(p, r, ok, live, opt: SolverOptions) -> FlatResult:
+def table_rvi(p, r, ok, live, opt: SolverOptions) -> FlatResult:
     """RVI on ``p [S, C, S]``, ``r [S, C]`` with the choices ``ok [S, C]``."""
 
     def bellman(h):
-        return _first_best(r + torch.einsum("sct,t->sc", p, h), ok, 1, 1e-9)
+        return first_best(r + torch.einsum("sct,t->sc", p, h), ok, 1, 1e-9)
 
-    h, (_, policy), (lo, hi) = _rvi(bellman, torch.zeros(p.shape[0], dtype=F64), live, opt)
+    h, (_, policy), (lo, hi) = rvi(bellman, torch.zeros(p.shape[0], dtype=F64), live, opt)
     return FlatResult((lo + hi) / 2, (lo, hi), h, policy)
 
 
@@ -160,7 +160,7 @@ def flat_optimal(model: FiniteModel, options: SolverOptions = SolverOptions()) -
     """Best gain of the flat MDP over stationary policies (communicating models)."""
     ok = torch.ones(model.reward.shape, dtype=torch.bool)
     live = torch.ones(model.n_states, dtype=torch.bool)
-    return _table_rvi(model.transition, model.reward, ok, live, options)
+    return table_rvi(model.transition, model.reward, ok, live, options)
 
 
 # --------------------------------------------------------------------------- the unrolled hierarchy

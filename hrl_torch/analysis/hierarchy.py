@@ -14,14 +14,14 @@ from hrl_torch.analysis.chains import (
     F64,
     FiniteModel,
     SolverOptions,
-    _first_best,
-    _rvi,
+    first_best,
     markov_chain_gain,
+    rvi,
 )
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 
 
-class _Unrolled:
+class Unrolled:
     """A task graph evaluated on every full state: availability, pops, reachable decision states."""
 
     def __init__(self, graph: TaskGraph, model: FiniteModel, starts: torch.Tensor | None) -> None:
@@ -151,7 +151,7 @@ class _Unrolled:
         )
         choice = torch.zeros(self.graph.n_instances, n, dtype=torch.long)
         for ks in self.levels:
-            value[ks], choice[ks] = _first_best(value[self.children[ks]], self.ok[ks], 1, tol)
+            value[ks], choice[ks] = first_best(value[self.children[ks]], self.ok[ks], 1, tol)
         q = value[self.children].masked_fill(~self.ok, -torch.inf)
         return torch.where(self.reach, value, 0.0), choice, q
 
@@ -200,7 +200,8 @@ class FlatChain:
     index: torch.Tensor
 
 
-def _flatten(u: _Unrolled, choice: torch.Tensor) -> FlatChain:
+def flatten_unrolled(u: Unrolled, choice: torch.Tensor) -> FlatChain:
+    """The Markov chain of the unrolled hierarchy ``u`` under the choices ``choice``."""
     inst, state = u.reach.nonzero(as_tuple=True)
     index = torch.full(u.reach.shape, -1)
     index[inst, state] = torch.arange(len(inst))
@@ -223,11 +224,11 @@ def flatten(
     graph: TaskGraph, model: FiniteModel, table: torch.Tensor, starts: torch.Tensor | None = None
 ) -> FlatChain:
     """The Markov chain of ``table`` over reachable decision states."""
-    u = _Unrolled(graph, model, starts)
-    return _flatten(u, u.resolve(table))
+    u = Unrolled(graph, model, starts)
+    return flatten_unrolled(u, u.resolve(table))
 
 
-def _start_values(chain: FlatChain, values: torch.Tensor) -> torch.Tensor:
+def start_values(chain: FlatChain, values: torch.Tensor) -> torch.Tensor:
     """Values at ``(root, s)`` for every full state (NaN where the root cannot start)."""
     row = chain.index[0]
     return torch.where(row >= 0, values[row.clamp_min(0)], torch.nan)
@@ -241,7 +242,7 @@ def policy_gain(
     NaN where the root cannot start (not a start state, or no available child there).
     """
     chain = flatten(graph, model, table, starts)
-    return _start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
+    return start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
 
 
 def policy_value(
@@ -278,7 +279,7 @@ def policy_value(
     p = chain.transition[rows][:, rows]
     v = torch.full_like(chain.reward, torch.nan)
     v[rows] = torch.linalg.solve(torch.eye(len(rows), dtype=F64) - gamma * p, chain.reward[rows])
-    return torch.where(_start_mask(starts, model.n_states), _start_values(chain, v), torch.nan)
+    return torch.where(_start_mask(starts, model.n_states), start_values(chain, v), torch.nan)
 
 
 def _start_mask(starts: torch.Tensor | None, n: int) -> torch.Tensor:
@@ -376,10 +377,10 @@ def hierarchically_optimal(
         starts: start states ``[S]`` (bool or indices) of the root (default: all).
         options: iteration settings.
     """
-    u = _Unrolled(graph, model, starts)
+    u = Unrolled(graph, model, starts)
     h = torch.zeros(graph.n_instances, u.n, dtype=F64)
     if not bool(u.term[graph.root].any()):
-        h, (_, choice, q), bounds = _rvi(u.backup, h, u.reach, options)
+        h, (_, choice, q), bounds = rvi(u.backup, h, u.reach, options)
         gain = sum(bounds) / 2
     else:
         for _ in range(options.max_iter):
@@ -391,7 +392,7 @@ def hierarchically_optimal(
             raise RuntimeError("value iteration did not converge")
         gain, bounds = float("nan"), (float("nan"), float("nan"))
     table, consistent = u.project(q, u.reach, graph.inst_node)
-    chain = _flatten(u, u.resolve(table))
-    exact = _start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
+    chain = flatten_unrolled(u, u.resolve(table))
+    exact = start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
     value = torch.where(u.reach[0], h[0], torch.nan)
     return HierarchicalResult(gain, bounds, value, choice, table, consistent, q, exact)

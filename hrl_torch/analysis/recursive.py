@@ -14,11 +14,11 @@ from hrl_torch.analysis.chains import (
     F64,
     FiniteModel,
     SolverOptions,
-    _first_best,
-    _table_rvi,
+    first_best,
     markov_chain_gain,
+    table_rvi,
 )
-from hrl_torch.analysis.hierarchy import _flatten, _start_values, _Unrolled, instance_table
+from hrl_torch.analysis.hierarchy import Unrolled, flatten_unrolled, instance_table, start_values
 from hrl_torch.graph import GraphError, TaskGraph
 
 
@@ -45,7 +45,7 @@ class RecursiveResult:
     gain: torch.Tensor
 
 
-def _model(u: _Unrolled, node: int, stop: torch.Tensor, choice: torch.Tensor, gamma: float):
+def _model(u: Unrolled, node: int, stop: torch.Tensor, choice: torch.Tensor, gamma: float):
     """What running ``node`` with ``choice`` until it or a caller (``stop [S]``) ends yields.
 
     Returns the expected discounted reward ``[S]``, steps ``[S]`` (meaningful for
@@ -78,7 +78,7 @@ def _model(u: _Unrolled, node: int, stop: torch.Tensor, choice: torch.Tensor, ga
 
 
 def _children_models(
-    u: _Unrolled, node: int, stop: torch.Tensor, choice: torch.Tensor, gamma: float
+    u: Unrolled, node: int, stop: torch.Tensor, choice: torch.Tensor, gamma: float
 ):
     """``_model`` of every child of ``node``, stacked: ``[C, S]``, ``[C, S]``, ``[C, S, S]``."""
     kids = u.graph.node_children[node, : int(u.graph.node_n_children[node])].tolist()
@@ -102,7 +102,7 @@ def recursively_optimal(
         starts: start states ``[S]`` (bool or indices) of the root (default: all).
         options: iteration settings.
     """
-    g, u = graph, _Unrolled(graph, model, starts)
+    g, u = graph, Unrolled(graph, model, starts)
     n, width = u.n, g.max_children
     choice = torch.zeros(g.n_nodes, n, dtype=torch.long)
     value = torch.zeros(g.n_nodes, n, dtype=F64)
@@ -119,7 +119,7 @@ def recursively_optimal(
             eye = torch.eye(n, dtype=F64)
             y = torch.where(ok, y, 1.0)
             smdp = torch.where(ok[..., None], eye + (p - eye) / y[..., None], eye)  # [C, S, S']
-            res = _table_rvi(
+            res = table_rvi(
                 smdp.transpose(0, 1), torch.where(ok, r / y, 0.0).T, ok.T, ~stop, options
             )  # data transformation: same gain as the SMDP
             root_gain, choice[i], value[i] = res.gain, res.policy, res.bias
@@ -128,7 +128,7 @@ def recursively_optimal(
             v = torch.zeros(n, dtype=F64)
             for _ in range(options.max_iter):
                 qi = r + p @ v  # exits into stop states are worth 0: v is 0 there
-                best, arg = _first_best(qi, ok, 0, 1e-9)
+                best, arg = first_best(qi, ok, 0, 1e-9)
                 v, change = torch.where(stop, 0.0, best), v
                 if float((v - change).abs().max()) <= options.tol:
                     break
@@ -137,6 +137,6 @@ def recursively_optimal(
             choice[i], value[i] = arg, v
         q[i, : len(r)] = qi.masked_fill(~ok, -torch.inf)
     table, consistent = u.project(q, u.node_reach, torch.arange(g.n_nodes))
-    chain = _flatten(u, u.resolve(instance_table(g, table)))
-    gain = _start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
+    chain = flatten_unrolled(u, u.resolve(instance_table(g, table)))
+    gain = start_values(chain, markov_chain_gain(chain.transition, chain.reward).gain)
     return RecursiveResult(choice, table, consistent, value, q, root_gain, gain)

@@ -17,13 +17,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import add_at, at_rows, lookup
 from hrl_torch.rng import BatchRNG, LevelDraws
-from hrl_torch.tables import EvalPlan, TableBank, TableLayout, TableSet
+from hrl_torch.tables import TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
 
@@ -42,6 +43,11 @@ class Learner(nn.Module):
     #: tabulated graph a function of the row's learner and state, which lets a non-learning
     #: agent look them up (``FrozenValues``)
     values_per_state: bool = False
+    #: ``instance_action_values(ctx)`` gives every instance's action values at once
+    #: (``ValuePolicy`` then chooses for every chooser in one go)
+    all_instances_at_once: bool = False
+    #: width ``K`` of the likelihood-ratio terms its policy returns (PG nodes; 0: none)
+    score_width: int = 0
 
     def __init__(self, graph: TaskGraph, n_learners: int) -> None:
         super().__init__()
@@ -54,6 +60,18 @@ class Learner(nn.Module):
 
     def evaluate(self, ctx: StepContext) -> None:
         """Fill ``ctx.values`` for the observations of ``ctx``."""
+
+    def make_policy(self, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
+        """The executor policy: ``exploration`` over the action values (``ValuePolicy``).
+
+        Policy-gradient and hybrid learners supply their own (PG nodes sample from their
+        heads; ``evaluate`` asks for the evaluation policy, PG nodes acting on their modes).
+        """
+        return ValuePolicy(self, exploration, rng)
+
+    def value_nodes(self) -> set[int] | None:
+        """The nodes this learner chooses for by values, if it keeps only some (else ``None``)."""
+        return None
 
     def action_values(self, inst: torch.Tensor, ctx: StepContext) -> torch.Tensor:
         """Values ``[B, A]`` of the children of ``inst [B]`` (padding slots are ignored)."""
@@ -104,6 +122,7 @@ class TabularLearner(Learner):
     """
 
     values_per_state = True
+    all_instances_at_once = True
 
     def __init__(
         self,
@@ -274,7 +293,7 @@ class ValuePolicy:
         self.choice_cost: torch.Tensor | None = None
         g = learner.graph
         self.width = uniforms_needed(g.max_children)
-        self.all_at_once = hasattr(learner, "instance_action_values")
+        self.all_at_once = learner.all_instances_at_once
         self.draws = LevelDraws(rng, g, self.width)
         # every chooser reads its level's block
         slots = torch.arange(self.width, device=g.chooser_depth.device)

@@ -224,12 +224,13 @@ class HPGRLLearner(Learner):
         """
         k = self.group_names.index(group)
         head = self.heads[group]
-        flat = getattr(self, buffer)[: self.sentinel].view(self.n_learners, self.total)
+        whole = {"theta": self.theta, "grad_sum": self.grad_sum}[buffer]
+        flat = whole[: self.sentinel].view(self.n_learners, self.total)
         start, size = int(self.params.offset[k]), head.n_states * head.n_cols
         block = flat[learner, start : start + size].view(head.n_states, head.n_cols)
         if head.continuous:
             return block[0]
-        return block[:, : getattr(head, "n_children", head.n_cols)]
+        return block[:, : head.n_children]
 
     # ------------------------------------------------------------------ per-row state
     def _pair_base(self, b: int, device: torch.device) -> torch.Tensor:

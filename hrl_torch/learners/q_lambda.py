@@ -32,13 +32,14 @@ from collections.abc import Sequence
 
 import torch
 
+from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
 from hrl_torch.ops import lookup
-from hrl_torch.tables import EvalPlan, TableBank
+from hrl_torch.tables import TableBank
 from hrl_torch.validate import check_fraction
 
 
@@ -88,6 +89,10 @@ class QLambdaLearner(TabularLearner):
         self._rows: dict[str, torch.Tensor] = {}
         self._num = torch.zeros(0)
         self._den = torch.zeros(0)
+
+    def value_nodes(self) -> set[int]:
+        """The nodes named in ``nodes`` (the ones this learner chooses for)."""
+        return set(self.value_node.nonzero().flatten().tolist())
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:

@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import torch
 
+from hrl_torch.checkpoint import Stateful
 from hrl_torch.executor import Choice
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
@@ -57,7 +58,7 @@ class RuleLearner(Learner):
     def get_extra_state(self) -> dict:
         """The training rule's memory (when it has any)."""
         rule = self._training_rule
-        return rule.state_dict() if hasattr(rule, "state_dict") else {}
+        return rule.state_dict() if isinstance(rule, Stateful) else {}
 
     def set_extra_state(self, state: dict) -> None:
         """Restore ``get_extra_state`` into the training rule."""

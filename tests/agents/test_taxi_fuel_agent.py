@@ -60,7 +60,7 @@ def test_hpgrl_improves_the_greedy_return():
 
 
 def test_running_dry_is_not_a_success():
-    from hrl_torch.trainer import _succeeded
+    from hrl_torch.evaluation import succeeded as _succeeded
 
     td = {
         "terminated": torch.tensor([True, True, False]),

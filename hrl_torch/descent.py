@@ -1,0 +1,172 @@
+"""The descent: from each row's top instance down to a primitive, by a policy's choices.
+
+``HierarchicalExecutor.act`` asks a ``Descent`` for the instance that ends on top of every
+stack: ``follow`` walks the choices of every choosing instance at once (a ``ChoosesAll``
+policy), ``level_by_level`` asks the policy's ``select`` once per stack level (any policy; on
+large CPU batches a ``SelectsRows`` policy's ``select_rows`` for the choosing rows only). The
+executor then pushes the new path (``HierarchicalExecutor._push``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+
+from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.transitions import Choice, SelectsRows, as_choice
+
+
+class Descent:
+    """The index tables of one executor's descents (``B`` rows over one graph).
+
+    Args:
+        graph: the task graph.
+        batch_size: ``B``.
+        score_width: width ``K`` of the likelihood-ratio terms the executor keeps.
+    """
+
+    def __init__(self, graph: TaskGraph, batch_size: int, score_width: int = 0) -> None:
+        g, device = graph, graph.node_children.device
+        long = dict(dtype=torch.long, device=device)
+        self.graph, self.batch_size, self.score_width = graph, batch_size, score_width
+        self.depth, self.device = graph.max_levels, device
+        rows = torch.arange(batch_size, **long)
+        self._row_base = rows * graph.n_nodes  # row b's block in a flat [B * N, ...]
+        # the index bases of ``follow``: each row's block of choices, codes, flags
+        ic, codes = g.n_choosers, g.n_choosers + g.n_instances + 1
+        self._chooser_base = (torch.arange(ic, **long) * g.max_children)[None, :]
+        self._leaf_codes = torch.arange(ic, codes, **long).expand(self.batch_size, -1)
+        self._code_base = rows * codes
+        self._greedy_base = rows[:, None] * (ic + 1)
+
+    def follow(self, code: torch.Tensor, choice: Choice, greedy: bool = True):
+        """Follow the choices of every choosing instance ``[B, Ic]`` down to a primitive.
+
+        ``code [B]``: where each row's descent starts (``HierarchicalExecutor``'s start code).
+
+        Returns the instance on top + 1 ``[B]`` and each level's choice greedy flag on the
+        new stack ``[B, D]`` (True where nothing was chosen; ``None`` without ``greedy``).
+        """
+        g, ic = self.graph, self.graph.n_choosers
+        nxt = torch.take(g.chooser_next_code, self._chooser_base + choice.child)
+        nxt = torch.cat([nxt, self._leaf_codes], 1)  # a primitive stays where it is
+        for _ in range(self.depth - 1):
+            code = torch.take(nxt, self._code_base + code)  # (take reads nxt flat)
+        top1 = code - ic
+        if not greedy:
+            return top1, None
+        flags = torch.nn.functional.pad(choice.greedy, (0, 1), value=True)
+        own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))
+        return top1, own
+
+    def level_by_level(self, f, code, ctx, policy, step, new_features=None, compact_rows=1024):
+        """``follow`` with the policy's ``select`` asked once per level (any policy).
+
+        The choice of the instance at depth ``d`` reads the row's random numbers of level
+        ``d`` (``push=d``); a policy's scores and continuous actions are kept on the stack.
+        ``new_features``: the features ``[B, N, F]`` of new invocations
+        (``graph.start_features``), which the rows whose instance at ``d`` was pushed in this
+        act choose from. From ``compact_rows`` rows on (CPU) a policy with ``select_rows``
+        chooses for the rows that choose at a level only (the same choices, fewer values).
+        ``f``: the stack's fields (their scores and continuous actions are updated).
+        """
+        g = self.graph
+        ic = g.n_choosers
+        # back to instances + 1 (0: none)
+        col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
+        compact = (
+            isinstance(policy, SelectsRows)
+            and self.device.type == "cpu"
+            and self.batch_size >= compact_rows
+        )
+        flags, scores = [], []
+        for level in range(self.depth - 1):
+            node = torch.take(g.inst_node_1, col)
+            at_level = torch.take(g.inst_depth_1, col) == level
+            chooses = torch.take(g.inst_composite_1, col) & at_level
+            seen = ctx
+            if new_features is not None:  # rows whose instance at this level started now
+                started = (level > f["top"])[:, None, None]
+                seen = replace(ctx, features=torch.where(started, new_features, ctx.features))
+            if compact:
+                choice, child = self._choose_rows(seen, policy, step, level, col, node, chooses)
+            else:
+                available = self._available_flat(ctx).index_select(0, self._row_base + node)
+                choice = as_choice(
+                    policy.select((col - 1).clamp_min(0), seen, available, step, level)
+                )
+                child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
+            if choice.score_index is not None:
+                scores.append((level, chooses, choice))
+            if g.action_dim:
+                self._record_action(f, chooses & ~torch.take(g.inst_composite_1, child), choice)
+            col = torch.where(chooses, child, col)
+            flags.append(choice.greedy | ~chooses)
+        flags.append(torch.ones_like(col, dtype=torch.bool))
+        own = torch.stack(flags, 1)
+        if scores:
+            self._record_scores(f, scores)
+        return col, own
+
+    def _choose_rows(self, ctx, policy, step, level, col, node, chooses):
+        """One level's choices, made for the rows that choose only: ``(choice, child)``.
+
+        ``choice`` holds every row's values (0, greedy, no score where a row does not
+        choose), ``child`` the chosen instance + 1 of every choosing row.
+        """
+        g = self.graph
+        rows = chooses.nonzero().squeeze(1)
+        inst1, node = col.index_select(0, rows), node.index_select(0, rows)
+        available = self._available_flat(ctx).index_select(0, rows * g.n_nodes + node)
+        part = as_choice(
+            policy.select_rows((inst1 - 1).clamp_min(0), ctx, available, step, level, rows)
+        )
+        child = torch.take(g.inst_children_1, inst1 * g.max_children + part.child)
+
+        def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
+            """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
+            out = values.new_full((col.shape[0], *values.shape[1:]), fill)
+            return out.index_copy(0, rows, values)
+
+        out = Choice(spread(part.child), spread(part.greedy, True))
+        if part.action is not None:
+            out.action = spread(part.action)
+        if part.score_index is not None:
+            out.score_index, out.score_value = spread(part.score_index), spread(part.score_value)
+        return out, spread(child)
+
+    def _available_flat(self, ctx: StepContext) -> torch.Tensor:
+        """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
+        return ctx.available.view(-1, self.graph.max_children)
+
+    def _record_scores(self, f: dict, scores: list) -> None:
+        """Keep each choice's likelihood-ratio term at its level, where the level chose.
+
+        ``scores``: ``(level, chose [B], choice)`` of the levels whose choices carry terms;
+        one write for all levels.
+        """
+        for _, _, choice in scores:
+            if choice.score_index.shape[1] != self.score_width:
+                raise ValueError(
+                    f"the policy scored its choices with {choice.score_index.shape[1]} entries, "
+                    f"the executor keeps score_width={self.score_width}"
+                )
+        old_index, old_value = f["score_index"], f["score_value"]
+        by_level = {level: (chose, choice) for level, chose, choice in scores}
+        none = torch.zeros_like(old_index[:, 0, 0], dtype=torch.bool)
+        chose = torch.stack(
+            [by_level[k][0] if k in by_level else none for k in range(self.depth)], 1
+        )
+        new = [by_level.get(k, (None, None))[1] for k in range(self.depth)]
+        index = torch.stack([c.score_index if c else old_index[:, k] for k, c in enumerate(new)], 1)
+        value = torch.stack([c.score_value if c else old_value[:, k] for k, c in enumerate(new)], 1)
+        f["score_index"] = torch.where(chose[..., None], index, old_index)
+        f["score_value"] = torch.where(chose[..., None], value, old_value)
+
+    @staticmethod
+    def _record_action(f: dict, pushed: torch.Tensor, choice: Choice) -> None:
+        """The action vector of the continuous primitives pushed (``pushed [B]``)."""
+        if choice.action is None:
+            raise GraphError("a continuous primitive was chosen without an action value")
+        f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])

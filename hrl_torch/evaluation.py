@@ -1,0 +1,267 @@
+"""Greedy evaluation: the ``Evaluator`` interface, episodic evaluation and its bookkeeping.
+
+The ``Trainer`` asks its evaluator for one number per learner (and a second, e.g. the success
+rate) at each evaluation, shows it every training step and collects its metrics at each log.
+Two evaluators exist: ``EpisodicEvaluator`` (mean return of greedy episodes, the default) and
+``hrl_torch.continuing.ThroughputEvaluator`` (continuing tasks: a throughput). ``EvalHistory``
+keeps what the evaluations found (the curve, the first step at a threshold).
+
+(A learner's own ``evaluate``, the values of its tables at a context, follows its
+``hrl_torch.eval_plan.EvalPlan``; this module evaluates policies.)
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import torch
+from tensordict import TensorDict
+
+from hrl_torch.graph import TaskGraph
+
+__all__ = [
+    "MAX_DECISIONS",
+    "EpisodicEvaluator",
+    "EvalEpisodes",
+    "EvalHistory",
+    "Evaluator",
+    "counted_reward",
+    "succeeded",
+]
+
+_STEP_FIELDS = ("reward", "duration", "terminated", "truncated", "is_init")
+#: root decisions kept per evaluation episode
+MAX_DECISIONS = 32
+
+
+class Evaluator:
+    """What the ``Trainer`` asks of an evaluator (subclass it; the defaults do nothing).
+
+    Attributes:
+        continuing: evaluates a continuing task (no episodes, no success rate).
+        tags: logged names of the two numbers ``evaluate`` returns.
+        metrics: the logged curves to plot.
+        units: the unit of a plotted metric's axis, where its name does not say it.
+        last_eval: further logged numbers of the latest evaluation (tag -> per learner).
+        last_records: the latest evaluation's episodes (``None``: it plays none).
+        last_steps: the latest evaluation's mean episode length per learner (``None``: none).
+    """
+
+    continuing: ClassVar[bool] = False
+    tags: tuple[str, str] = ("charts/eval_return", "charts/eval_success")
+    metrics: ClassVar[list[str]] = ["charts/eval_return", "charts/episode_return"]
+    units: ClassVar[dict[str, str]] = {}
+    last_eval: dict[str, list[float]] = {}
+    last_records: TensorDict | None = None
+    last_steps: torch.Tensor | None = None
+
+    def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
+        """Two numbers per learner ``([P], [P])`` for ``trainer``'s current tables."""
+        raise NotImplementedError
+
+    def observe(self, td: TensorDict, rows: torch.Tensor, n_learners: int) -> None:
+        """See one training step of every row (``rows [B]``: learner of each row)."""
+
+    def flush(self) -> dict[str, list[float]]:
+        """Training metrics since the last log, per learner."""
+        return {}
+
+    def state_dict(self) -> dict:
+        """What a checkpoint keeps of this evaluator."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``."""
+
+    def summary(self, learner: int) -> dict[str, float]:
+        """What ``summary.json`` adds for one learner."""
+        return {}
+
+
+class EpisodicEvaluator(Evaluator):
+    """Mean return and success rate of one greedy episode per eval-env row (the default)."""
+
+    def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
+        """Greedy episodes on ``trainer.eval_env``: mean return and success rate ``[P]``."""
+        records = self.episodes(trainer)
+        self.last_records = records
+        n = trainer.eval_env.envs_per_learner
+        self.last_steps = records["length"].view(-1, n).mean(1)
+        success = records["success"].float().view(-1, n).mean(1)
+        return records["return"].view(-1, n).mean(1), success
+
+    @staticmethod
+    def episodes(trainer) -> TensorDict:
+        """Play one greedy episode per ``trainer.eval_env`` row; one record each (on the CPU).
+
+        Every evaluation plays the same episodes (the eval env's and the tie-breaking random
+        streams restart), so evaluation is a function of the tables alone; with one eval seed
+        for all learners (as ``run_experiment`` sets up) every learner meets the same episodes.
+
+        Returns a TensorDict ``[P * eval_episodes]`` (learner ``p``'s episodes are rows
+        ``p * n .. p * n + n - 1``): ``learner``, ``seed``, ``episode`` (the same index is the
+        same start for every learner), ``return``, ``length`` (steps until the episode ended or
+        ``eval_max_steps``), ``success``, ``truncated`` (the env's time limit or
+        ``eval_max_steps`` ended it), ``start`` (the reset observation) and the root's decisions:
+        ``decisions [.., MAX_DECISIONS]`` (the root's children in the order it invoked them,
+        node indices, -1 after the last; the first ``MAX_DECISIONS`` only) and ``n_decisions``.
+        """
+        env, cfg, graph = trainer.eval_env, trainer.config, trainer.graph
+        if env.rng is not None:
+            env.rng.load_state_dict({"counter": 0})
+        agent = trainer.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
+        agent.freeze_values(cfg.eval_max_steps)  # the tables are frozen: values per state once
+        start = env.reset()
+        action = agent.start(start)
+        episodes = EvalEpisodes(env.batch_size, env.device)
+        decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
+        finite_only = trainer.executor_config.on_bad_step == "skip"
+        for _ in range(cfg.eval_max_steps):
+            if decisions_on:
+                episodes.record_root_decisions(agent.executor, graph)
+            td = env.step(action)
+            alive = episodes.add(td, counted_reward(td, finite_only), cfg.success_key)
+            if alive == 0:
+                break
+            if env.subset_safe and alive <= env.batch_size // 2 and env.batch_size >= 32:
+                keep = (~episodes.now["finished"]).nonzero().squeeze(1)
+                smaller = agent.subset(keep)  # step only the rows still playing from now on
+                if smaller is not None:
+                    agent, env, td = smaller, env.subset(keep), td[keep]
+                    episodes.compact(keep)
+            action = agent.step(td)
+        if decisions_on:
+            episodes.record_root_decisions(agent.executor, graph)
+        return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
+
+
+class EvalHistory:
+    """What the evaluations of a run found: the curve, first hits, the latest details.
+
+    Args:
+        n_learners: ``P``.
+    """
+
+    def __init__(self, n_learners: int) -> None:
+        self.curve: list[tuple[int, list[float]]] = []
+        self.first_hit: list[int | None] = [None] * n_learners
+        self.last_success: list[float] = []
+        self.last_steps: list[float] = []
+
+    def record(self, step: int, values, success, steps, real_steps, threshold) -> None:
+        """Add one evaluation at ``step``; a learner reaching ``threshold`` is noted once."""
+        self.last_success, self.last_steps = success, steps
+        self.curve.append((step, values))
+        for p, v in enumerate(values):
+            if threshold is not None and self.first_hit[p] is None and v >= threshold:
+                self.first_hit[p] = int(real_steps[p])
+
+    def state_dict(self) -> dict:
+        """The history, in a checkpoint's keys."""
+        return {
+            "curve": [[s, list(v)] for s, v in self.curve],
+            "first_hit": [-1 if h is None else h for h in self.first_hit],
+            "last_eval": {"success": list(self.last_success), "steps": list(self.last_steps)},
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``."""
+        self.curve[:] = [(int(s), [float(x) for x in v]) for s, v in state["curve"]]
+        self.first_hit = [None if h < 0 else int(h) for h in state["first_hit"]]
+        last = state.get("last_eval", {})
+        self.last_success = [float(x) for x in last.get("success", [])]
+        self.last_steps = [float(x) for x in last.get("steps", [])]
+
+
+class EvalEpisodes:
+    """The running results of greedy evaluation episodes, one row each.
+
+    ``now`` holds the rows still stepped (``live``: their indices among all rows); ``compact``
+    keeps only some of them, after saving every row's results so far.
+    """
+
+    def __init__(self, batch_size: int, device) -> None:
+        def zeros(dtype=torch.float32, *shape):
+            return torch.zeros(batch_size, *shape, dtype=dtype, device=device)
+
+        self.now = {
+            "return": zeros(),
+            "length": zeros(),
+            "success": zeros(torch.bool),
+            "truncated": zeros(torch.bool),
+            "finished": zeros(torch.bool),
+            "decisions": zeros(torch.long, MAX_DECISIONS) - 1,
+            "n_decisions": zeros(torch.long),
+        }
+        self.all = {k: v.clone() for k, v in self.now.items()}
+        self.live = torch.arange(batch_size, device=device)
+
+    def _save(self) -> None:
+        for k, v in self.now.items():
+            self.all[k][self.live] = v
+
+    def add(self, td: TensorDict, reward: torch.Tensor, success_key: str) -> int:
+        """Account one env step of the current rows; how many are still playing."""
+        now, playing = self.now, ~self.now["finished"]
+        now["return"] += reward * playing
+        now["length"] += playing.float()
+        now["success"] |= succeeded(td, success_key) & playing
+        now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
+        now["finished"] |= td["terminated"] | td["truncated"]
+        return int((~now["finished"]).sum())
+
+    def record_root_decisions(self, executor, graph: TaskGraph) -> None:
+        """After ``act``: the root's new child in each row still playing.
+
+        The first ``MAX_DECISIONS`` are kept, in order.
+        """
+        now = self.now
+        new = executor.invoked[:, 1] & ~now["finished"]
+        child = graph.inst_node[executor.stack.inst[:, 1].clamp_min(0)]
+        count = now["n_decisions"]
+        slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
+        keep = new & (count < MAX_DECISIONS)
+        kept = torch.where(keep, child, now["decisions"].gather(1, slot)[:, 0])
+        now["decisions"].scatter_(1, slot, kept[:, None])
+        count += new.long()
+
+    def compact(self, keep: torch.Tensor) -> None:
+        """Step only ``keep`` (indices into the current rows) from now on."""
+        self._save()
+        self.now = {k: v[keep] for k, v in self.now.items()}
+        self.live = self.live[keep]
+
+    def records(self, start: TensorDict, seeds, n: int) -> TensorDict:
+        """Every row's record (see ``Trainer.evaluate_episodes``); ``n`` episodes per seed."""
+        self._save()
+        out = {k: v.cpu() for k, v in self.all.items()}
+        row = torch.arange(out["return"].shape[0])
+        fields = {
+            "learner": row // n,
+            "seed": torch.tensor(seeds).repeat_interleave(n),
+            "episode": row % n,
+            **{k: out[k] for k in ("return", "length", "success", "decisions", "n_decisions")},
+            "truncated": out["truncated"] | ~out["finished"],
+            "start": start.exclude(*_STEP_FIELDS).cpu(),
+        }
+        return TensorDict(fields, batch_size=[row.shape[0]])
+
+
+def counted_reward(td, finite_only: bool) -> torch.Tensor:
+    """The step's reward as returns count it (``td``: the step, or its ``entries``).
+
+    With ``finite_only`` (``ExecutorConfig.on_bad_step="skip"``) a skipped bad step counts 0.
+    """
+    reward = td["reward"]
+    return torch.where(reward.isfinite(), reward, 0.0) if finite_only else reward
+
+
+def succeeded(td, key: str) -> torch.Tensor:
+    """``[B]``: the episode terminated successfully (``key``: see ``TrainConfig.success_key``).
+
+    ``td``: the step (a TensorDict or its ``entries``).
+    """
+    if key == "terminated":
+        return td["terminated"]
+    flag = ~td[key[1:]] if key.startswith("!") else td[key]
+    return flag & td["terminated"]
