@@ -12,6 +12,7 @@ keeps what the evaluations found (the curve, the first step at a threshold).
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import torch
@@ -245,6 +246,22 @@ class EvalEpisodes:
             "start": start.exclude(*_STEP_FIELDS).cpu(),
         }
         return TensorDict(fields, batch_size=[row.shape[0]])
+
+
+def eval_line(step: int, tag: str, values: list[float], seconds: float) -> str:
+    """One line for an evaluation's result: the mean over seeds, their range, its cost."""
+    name = tag.split("/")[-1].replace("eval_", "greedy ").replace("_", " ")
+    finite = [v for v in values if math.isfinite(v)]
+    head = f"eval at step {step:,}: {name}"
+    if not finite:  # say why, instead of a bare nan
+        return (
+            f"{head} nan for every seed: no evaluation episode ended, or the evaluation window "
+            f"saw no time (raise eval_max_steps or the window) [{seconds:.1f} s]"
+        )
+    mean = sum(finite) / len(finite)
+    seeds = f"{len(finite)} seeds {min(finite):.4g} .. {max(finite):.4g}"
+    missing = f", {len(values) - len(finite)} nan" if len(finite) < len(values) else ""
+    return f"{head} {mean:.4g} ({seeds}{missing}) [{seconds:.1f} s]"
 
 
 def counted_reward(td, finite_only: bool) -> torch.Tensor:

@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from hrl_torch.agent import AgentFactory, HierarchicalAgent, SingleAgentFactory
 from hrl_torch.checkpoint import Checkpointer
-from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator
+from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration, Greedy
 from hrl_torch.graph import TaskGraph
@@ -259,6 +259,8 @@ class Trainer:
         if self.logger and self.last_eval_records is not None:
             self.logger.log_episodes(self.step, self.last_eval_records, self.graph.names)
         values = mean.tolist()
+        if self.logger or self.config.progress:  # the result as it happens (CLI runs)
+            tqdm.write(eval_line(self.step, self.evaluator.tags[0], values, self.eval_seconds))
         self.history.record(
             self.step,
             values,

@@ -118,3 +118,17 @@ def test_every_option_has_help_text():
         (p.prog, a.dest) for p, a in actions(parser("0")) if not a.help and a.dest != "command"
     ]
     assert not missing
+
+
+def test_no_progress_prints_each_evaluation_as_it_happens(tmp_path, capsys):
+    run(tmp_path, "--steps", "800")  # evaluations at 400 and 800 (eval_every 400)
+    lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("eval at step")]
+    assert len(lines) == 2 and lines[0].startswith("eval at step 400: greedy return ")
+    assert "(2 seeds " in lines[0] and lines[0].endswith(" s]")
+
+
+def test_an_all_nan_evaluation_says_why():
+    from hrl_torch.evaluation import eval_line
+
+    line = eval_line(64, "charts/eval_throughput", [float("nan")] * 2, 1.0)
+    assert line.startswith("eval at step 64: greedy throughput nan for every seed: ")
