@@ -442,7 +442,8 @@ class ShipMonitor(nn.Module):
         level, prim = batch[LEVEL], batch[PRIMITIVE]
         b, p = batch.batch_size[0], self.episodes.events.shape[0]
         if "steps" not in self._rows or self._rows["steps"].shape[0] != b:
-            self._rows = {"steps": torch.zeros(b), "calls": torch.zeros(b)}
+            zeros = torch.zeros(b, device=prim["valid"].device)
+            self._rows = {"steps": zeros, "calls": zeros.clone()}
         rows = self._rows
         rows["steps"] += prim["valid"]
         root = level["valid"][:, 0]

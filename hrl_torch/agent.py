@@ -295,7 +295,7 @@ class SingleAgentFactory:
     def __call__(self, graph, learner, exploration, env, stream, executor_config, **options):
         """An agent over ``env``'s rows (``AgentFactory``)."""
         e = env.envs_per_learner
-        rng = BatchRNG(env.seeds, e, stream)
+        rng = BatchRNG(env.seeds, e, stream, device=env.device)
         return HierarchicalAgent(graph, learner, exploration, rng, e, executor_config, **options)
 
     def table_sets(self, n_learners: int) -> int:

@@ -128,12 +128,13 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         eval_env = make_eval_env(
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
-    graph = spec.make_graph().to(opts.device)
+    graph = spec.make_graph()  # built on the CPU (building reads data), then moved
     agents = None
     if isinstance(env, MultiAgentBatchedEnv):  # table sets per seed and agent
         agents = MultiAgentFactory(env.n_agents, spec.multiagent or MultiAgentConfig())
     sets = len(seeds) if agents is None else agents.table_sets(len(seeds))
     learner = spec.make_learner(graph, sets).to(opts.device)
+    graph = graph.to(opts.device)
     env = env.to(opts.device)
     eval_env = None if eval_env is None else eval_env.to(opts.device)
     evaluator = domain.make_evaluator(config) if domain.make_evaluator else None
