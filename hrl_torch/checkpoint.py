@@ -14,6 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
+from hrl_torch.signals import signals_deferred
 from hrl_torch.sparse_store import pack, unpack
 
 FORMAT = "hrl-torch/checkpoint/2"  # 2: mostly-constant tensors stored sparsely (sparse_store)
@@ -29,11 +30,13 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        torch.save({"format": FORMAT, **pack(state)}, tmp)
-        os.replace(tmp, path)
-    finally:  # a failed write leaves the previous checkpoint and no stale .tmp
-        tmp.unlink(missing_ok=True)
+    packed = {"format": FORMAT, **pack(state)}
+    with signals_deferred():  # a signal waits for the write: no stale .tmp, no half file
+        try:
+            torch.save(packed, tmp)
+            os.replace(tmp, path)
+        finally:  # a failed write leaves the previous checkpoint and no stale .tmp
+            tmp.unlink(missing_ok=True)
     return path
 
 

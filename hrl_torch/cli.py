@@ -23,6 +23,7 @@ from pathlib import Path
 
 from hrl_torch import __version__
 from hrl_torch.cli_parser import UserError, parser
+from hrl_torch.signals import Interrupted, raise_on_signals
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
 
@@ -79,17 +80,19 @@ def main(argv: list[str] | None = None) -> int:
         parser(__version__).print_help()
         return 2
     try:
-        return _run(parser(__version__).parse_args(argv))
+        with raise_on_signals():  # SIGTERM (schedulers) is handled as Ctrl-C at every phase
+            return _run(parser(__version__).parse_args(argv))
     except UserError as err:
         if debug:
             raise
         print(f"hrl-torch: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # before or after training: nothing to save
+    except KeyboardInterrupt as err:  # outside training (a fresh run's unstarted folder is removed)
         if debug:
             raise
-        print("hrl-torch: interrupted", file=sys.stderr)
-        return 128 + signal.SIGINT
+        name = err.signal if isinstance(err, Interrupted) else "SIGINT"
+        print(f"hrl-torch: interrupted ({name})", file=sys.stderr)
+        return 128 + signal.Signals[name].value
     except BrokenPipeError:  # ``hrl-torch list | head``: the reader left, nothing to report
         sys.stdout = open(os.devnull, "w")  # no flush error when Python exits
         return 0
@@ -142,6 +145,13 @@ def _run(args: argparse.Namespace) -> int:
         print(
             f"hrl-torch: {name} at step {summary['env_steps_per_learner']}: checkpoint written; "
             f"continue with: hrl-torch train --resume {summary['checkpoint']}",
+            file=sys.stderr,
+        )
+        return 128 + signal.Signals[name].value
+    if "signal_after_training" in summary:  # the run finished; its record was written first
+        name = summary["signal_after_training"]
+        print(
+            f"hrl-torch: {name} after training: checkpoint, summary and plots written",
             file=sys.stderr,
         )
         return 128 + signal.Signals[name].value

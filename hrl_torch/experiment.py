@@ -27,6 +27,7 @@ from hrl_torch.plots import plot_curves
 from hrl_torch.rng import check_seeds
 from hrl_torch.runlock import RunLock
 from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir
+from hrl_torch.signals import StopOnSignal
 from hrl_torch.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
 
@@ -258,17 +259,20 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
     start = time.perf_counter()
     result = trainer.train(run_dir=run_dir)
     wall = time.perf_counter() - start
-    logger.close()
-    plots = plot_curves(
-        run_dir / "progress.csv",
-        trainer.evaluator.metrics,
-        run_dir,
-        title=f"{domain.name} / {algo}",
-        reference=domain.reference,
-        units=trainer.evaluator.units,
-    )
-    summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
-    logger.write_summary(summary)
+    with StopOnSignal() as late:  # a signal now waits: the finished run's record is written
+        logger.close()
+        plots = plot_curves(
+            run_dir / "progress.csv",
+            trainer.evaluator.metrics,
+            run_dir,
+            title=f"{domain.name} / {algo}",
+            reference=domain.reference,
+            units=trainer.evaluator.units,
+        )
+        summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
+        if late.signal is not None:
+            summary["signal_after_training"] = late.signal
+        logger.write_summary(summary)
     return run_dir, summary
 
 

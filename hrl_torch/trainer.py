@@ -168,6 +168,7 @@ class Trainer:
 
         SIGINT (Ctrl-C) or SIGTERM ends the run after the current step: a checkpoint is written
         (with ``run_dir``) and the result says ``interrupted``; a second signal acts as usual.
+        A signal during the final evaluation lets it finish and the checkpoint be written.
         """
         cfg = self.config
         total = cfg.steps if steps is None else steps
@@ -179,21 +180,21 @@ class Trainer:
             desc="train",
             dynamic_ncols=True,
         )
-        with StopOnSignal() as stop:
+        with StopOnSignal() as stop:  # the final evaluation and save included
             while self.step < total and stop.signal is None:
                 t0 = time.perf_counter()
                 self.train_step()
                 self.counters.train_seconds += time.perf_counter() - t0
                 bar.update(self.E)
                 self._after_step(cfg, run_dir)
-        bar.close()
-        if self.leaf_monitor is not None:
-            self.leaf_monitor.warn()
-        if self.eval_env is not None and stop.signal is None:
-            if not self.curve or self.curve[-1][0] != self.step:
-                self._evaluate_and_log()
-        if run_dir is not None:
-            self.save(f"{run_dir}/checkpoint.pt")
+            bar.close()
+            if self.leaf_monitor is not None:
+                self.leaf_monitor.warn()
+            if self.eval_env is not None and stop.signal is None:
+                if not self.curve or self.curve[-1][0] != self.step:
+                    self._evaluate_and_log()
+            if run_dir is not None:
+                self.save(f"{run_dir}/checkpoint.pt")
         args = (
             self.history,
             self.step,
