@@ -126,7 +126,8 @@ class Checkpointer:
             self._apply(state)
         except Exception as err:
             self._apply(backup)
-            raise CheckpointError(f"checkpoint does not fit this run: {err}") from err
+            what = "; ".join(line.strip() for line in str(err).splitlines() if line.strip())
+            raise CheckpointError(f"checkpoint does not fit this run: {what}") from err
 
     def _apply(self, state: dict) -> None:
         for name, part in self.parts.items():

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from hrl_torch import __version__
 from hrl_torch.cli_parser import UserError, parser
+from hrl_torch.failures import RunFailed
 from hrl_torch.signals import Interrupted, raise_on_signals
 
 os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
@@ -87,6 +88,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"hrl-torch: error: {err}", file=sys.stderr)
         return 2
+    except RunFailed as err:  # training stopped on an error: what is left is in the message
+        if debug:
+            raise
+        print(f"hrl-torch: failed: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as err:  # outside training (a fresh run's unstarted folder is removed)
         if debug:
             raise
@@ -106,6 +112,8 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
     from hrl_torch import registry
+    from hrl_torch.checkpoint import CheckpointError
+    from hrl_torch.envcheck import EnvContractError
     from hrl_torch.experiment import format_summary, run_experiment
     from hrl_torch.runlock import RunLockedError
 
@@ -136,7 +144,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0  # a finished run: nothing to do
     try:
         run_dir, summary = run_experiment(domain, algo, opts)
-    except RunLockedError as err:
+    except (RunLockedError, CheckpointError, EnvContractError) as err:  # nothing changed yet
         raise UserError.of(err) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")

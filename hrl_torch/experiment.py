@@ -20,6 +20,7 @@ from hrl_torch import __version__, registry
 from hrl_torch.checkpoint import load_checkpoint
 from hrl_torch.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family  # noqa: F401 (re-exported)
 from hrl_torch.envcheck import check_env
+from hrl_torch.failures import RunFailed
 from hrl_torch.multiagent import MultiAgentConfig
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
 from hrl_torch.multiagent_factory import MultiAgentFactory
@@ -257,7 +258,10 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
     )
     logger, trainer = _start(domain, algo, opts, run_dir, hparams, state)
     start = time.perf_counter()
-    result = trainer.train(run_dir=run_dir)
+    try:
+        result = trainer.train(run_dir=run_dir)
+    except Exception as err:
+        raise _failed(err, trainer, logger, run_dir, opts) from err
     wall = time.perf_counter() - start
     with StopOnSignal() as late:  # a signal now waits: the finished run's record is written
         logger.close()
@@ -276,20 +280,46 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
     return run_dir, summary
 
 
+def _failed(err: Exception, trainer, logger, run_dir: Path, opts: RunOptions) -> RunFailed:
+    """Record a run that failed while training: ``summary.json`` marked failed, or no folder.
+
+    A fresh run that trained nothing leaves no folder; otherwise the folder stays with its last
+    checkpoint (if any: ``--resume`` continues from it) and a ``summary.json`` saying why.
+    """
+    logger.close()
+    reason = " ".join(str(err).split()) or type(err).__name__
+    step, checkpoint = trainer.step, run_dir / "checkpoint.pt"
+    if not opts.resume and trainer.step == 0 and not checkpoint.exists():
+        shutil.rmtree(run_dir, ignore_errors=True)
+        return RunFailed(f"{reason} (at step 0; the run folder was removed)")
+    summary = {"status": "failed", "reason": reason, "failed_at_step": step}
+    if checkpoint.exists():
+        at = int(load_checkpoint(checkpoint)["trainer"]["step"])
+        summary["checkpoint"] = str(checkpoint)
+        left = f"continue from step {at} with: hrl-torch train --resume {checkpoint}"
+    else:
+        left = f"no checkpoint was written (--checkpoint-every); logs kept in {run_dir}"
+    logger.write_summary(summary)
+    return RunFailed(f"{reason} (at step {step}; {left})")
+
+
 def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: dict | None):
     """The run's logger and trainer (restored from ``state`` when resuming).
 
-    A failed start of a fresh run removes the folder ``make_run_dir`` made.
+    The trainer is built and restored before anything in the folder changes, so a checkpoint
+    that does not fit leaves a resumed run's folder byte for byte as it was; a failed start of
+    a fresh run removes the folder ``make_run_dir`` made.
     """
     resumed_at = None if state is None else int(state["trainer"]["step"])
     logger = None
     try:
+        trainer = build_trainer(domain, algo, opts)
+        if state is not None:
+            trainer.load_state_dict(state["trainer"])
         logger = RunLogger(
             run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
         )
-        trainer = build_trainer(domain, algo, opts, logger)
-        if state is not None:
-            trainer.load_state_dict(state["trainer"])
+        trainer.logger = logger
     except BaseException:
         if logger is not None:  # its writers' threads stop before their folder goes
             logger.close()

@@ -1,5 +1,6 @@
 """Every user error of the CLI is one line on stderr and exit code 2, and nothing is written."""
 
+import json
 import os
 from pathlib import Path
 
@@ -162,3 +163,54 @@ def test_an_agents_module_in_the_working_folder_is_not_run(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert "taxi [built-in]" in done.stdout
+
+
+FAULTY = """
+from dataclasses import replace
+
+import torch
+
+from agents.taxi import DOMAIN as TAXI
+from envs.taxi import TaxiEnv
+
+
+class NaNAfter(TaxiEnv):
+    def _step_all(self, action):
+        reward, duration, done = super()._step_all(action)
+        self.calls = getattr(self, "calls", 0) + 1
+        if self.batch_size == 6 and self.calls > {after}:  # the training env only
+            reward = torch.full_like(reward, float("nan"))
+        return reward, duration, done
+
+
+def make_env(seeds, envs_per_learner, backend="torch"):
+    return NaNAfter(seeds, envs_per_learner)
+
+
+DOMAIN = replace(TAXI, name="faulty", make_env=make_env, backends=("torch",))
+"""
+
+
+@pytest.mark.parametrize("after", [0, 100])
+def test_an_env_fault_while_training_is_one_line_and_leaves_a_clear_folder(
+    after, tmp_path, capsys, monkeypatch
+):
+    from hrl_torch import registry
+
+    (tmp_path / f"faulty_{after}.py").write_text(FAULTY.replace("{after}", str(after)))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_DOMAINS", dict(registry._DOMAINS))
+    monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
+    out = tmp_path / "runs"
+    args = ["--domain-module", f"faulty_{after}", "train", "faulty", "--algo", "q", "--seeds", "2"]
+    args += ["--envs-per-seed", "3", "--steps", "2000", "--out", str(out), "--no-progress"]
+    assert main([*args, "--no-tensorboard"]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("hrl-torch: failed: ") and "nan" in line.lower(), line
+    runs = list(out.iterdir())
+    if after == 0:  # nothing trained: no folder left
+        assert runs == [] and "the run folder was removed" in line
+    else:  # trained: the folder stays, saying why, with its logs
+        summary = json.loads((runs[0] / "summary.json").read_text())
+        assert summary["status"] == "failed" and summary["failed_at_step"] > 0
+        assert (runs[0] / "progress.csv").exists() and "no checkpoint was written" in line

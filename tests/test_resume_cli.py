@@ -151,9 +151,10 @@ def test_a_crash_between_checkpoints_logs_no_step_twice(tmp_path, straight, monk
             raise RuntimeError("power cut")
 
     monkeypatch.setattr(Trainer, "train_step", crash_at_604)
-    with pytest.raises(RuntimeError, match="power cut"):
-        train(tmp_path, "--steps", "800", "--checkpoint-every", "200")
+    assert train(tmp_path, "--steps", "800", "--checkpoint-every", "200") == 1
     run_dir = the_run(tmp_path)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["reason"] == "power cut"
     ckpt_step = load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["step"]
     assert ckpt_step == 404  # checkpoints at 4, 204, 404 (the clock moves E = 4 per step)
     steps = [int(r[0]) for r in logged(run_dir) if r[0] != "step"]
@@ -326,3 +327,18 @@ def test_two_concurrent_resumes_one_is_refused(tmp_path):
         first.wait(timeout=120)
     resumes = json.loads((run_dir / "hparams.json").read_text())["resumes"]
     assert len(resumes) == 1
+
+
+def test_a_checkpoint_that_does_not_fit_is_one_line_and_changes_nothing(tmp_path, capsys):
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    key = next(k for k in state["trainer"]["learner"] if k.endswith(".C"))
+    state["trainer"]["learner"][key] = torch.zeros(3, 3)  # a wrong-shape table
+    torch.save(state, run_dir / "checkpoint.pt")
+    before = snapshot(run_dir)
+    capsys.readouterr()
+    assert resume(run_dir, "--steps", "800") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hrl-torch: error: ") and "fit" in err[0], err
+    assert snapshot(run_dir) == before  # hparams.json, CSVs, TensorBoard: untouched
