@@ -39,7 +39,7 @@ __all__ = ["TrainConfig", "TrainResult", "Trainer", "hparams_of", "warn_cpu_thre
 def checked_factory(factory: AgentFactory | None, env, learner: Learner) -> AgentFactory:
     """The agent factory; a ``ValueError`` unless the learner has a table set per agent."""
     if factory is None:
-        if getattr(env, "n_agents", None) is not None:
+        if env.n_agents is not None:
             raise ValueError(
                 "a multi-agent env needs agent_factory="
                 "hrl_torch.multiagent_factory.MultiAgentFactory(env.n_agents, config)"
