@@ -33,6 +33,10 @@ class GymnasiumBatchEnv:
     rng = None
     #: rows cannot be split off (``BatchedEnv.subset_safe``)
     subset_safe = False
+    #: one agent per row; no declared observation fields (``BatchedEnv``'s declarations)
+    n_agents = None
+    observation_sizes: dict = {}
+    observation_bounds: dict = {}
 
     def __init__(
         self,

@@ -48,6 +48,8 @@ class BatchedEnv:
     """
 
     state_keys: tuple[str, ...] = ()
+    #: agents per env row (``None``: a single-agent env; ``hrl_torch.multiagent_env`` sets it)
+    n_agents: int | None = None
     #: discrete observation fields and their number of values (shape ``[B]``, long)
     observation_sizes: dict[str, int] = {}
     #: continuous observation fields: ``(low, high)`` per field (shape ``[B, *shape]``, float)

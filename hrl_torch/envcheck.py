@@ -98,7 +98,7 @@ def _first_of_each(failures: list[str]) -> list[str]:
 
 def _random_action(env, gen: torch.Generator) -> torch.Tensor:
     b = env.batch_size
-    if getattr(env, "n_agents", None) is not None:
+    if env.n_agents is not None:
         shape = (b, env.n_agents)
         return torch.randint(env.n_actions, shape, generator=gen).to(env.device)
     if env.n_actions is not None:
@@ -138,7 +138,7 @@ def _check_output(env, td, where: str, failures: list[str]) -> None:
         _field(td, key, where, failures, shape=(b,), floating=True)
     for key in FLAG_FIELDS:
         _field(td, key, where, failures, shape=(b,), dtype=torch.bool)
-    for key, n in getattr(env, "observation_sizes", {}).items():
+    for key, n in env.observation_sizes.items():
         value = _field(td, key, where, failures, shape=(b,), floating=False)
         if value is not None and bool(((value < 0) | (value >= n)).any()):
             row = int(((value < 0) | (value >= n)).nonzero()[0])
@@ -146,7 +146,7 @@ def _check_output(env, td, where: str, failures: list[str]) -> None:
                 f"{where}: field {key!r} expected values in [0, {n}), found {int(value[row])} "
                 f"(env row {row})"
             )
-    for key, (low, _) in getattr(env, "observation_bounds", {}).items():
+    for key, (low, _) in env.observation_bounds.items():
         shape = (b, *torch.tensor(low).shape)
         value = _field(td, key, where, failures, shape=shape, floating=True)
         if value is not None and not bool(value.isfinite().all()):

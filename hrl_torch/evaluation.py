@@ -1,10 +1,10 @@
 """Greedy evaluation: the ``Evaluator`` interface, episodic evaluation and its bookkeeping.
 
 The ``Trainer`` asks its evaluator for one number per learner (and a second, e.g. the success
-rate) at each evaluation, shows it every training step and collects its metrics at each log.
-Two evaluators exist: ``EpisodicEvaluator`` (mean return of greedy episodes, the default) and
-``hrl_torch.continuing.ThroughputEvaluator`` (continuing tasks: a throughput). ``EvalHistory``
-keeps what the evaluations found (the curve, the first step at a threshold).
+rate) at each evaluation, lets it see every training step and collects its metrics at each
+log. Two evaluators exist: ``EpisodicEvaluator`` (mean return of greedy episodes, the default)
+and ``hrl_torch.continuing.ThroughputEvaluator`` (continuing tasks: a throughput).
+``EvalHistory`` keeps what the evaluations found (the curve, the first step at a threshold).
 
 (A learner's own ``evaluate``, the values of its tables at a context, follows its
 ``hrl_torch.eval_plan.EvalPlan``; this module evaluates policies.)
@@ -13,6 +13,8 @@ keeps what the evaluations found (the curve, the first step at a threshold).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import ClassVar
 
 import torch
@@ -51,8 +53,8 @@ class Evaluator:
     continuing: ClassVar[bool] = False
     tags: tuple[str, str] = ("charts/eval_return", "charts/eval_success")
     metrics: ClassVar[list[str]] = ["charts/eval_return", "charts/episode_return"]
-    units: ClassVar[dict[str, str]] = {}
-    last_eval: dict[str, list[float]] = {}
+    units: ClassVar[Mapping[str, str]] = MappingProxyType({})
+    last_eval: Mapping[str, list[float]] = MappingProxyType({})
     last_records: TensorDict | None = None
     last_steps: torch.Tensor | None = None
 

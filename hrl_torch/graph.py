@@ -92,8 +92,7 @@ class TaskGraph(nn.Module):
         self.shaping_nodes = [
             k
             for k, x in enumerate(self.nodes)
-            if not x.is_primitive
-            and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
+            if not x.is_primitive and overrides(x, "shaping_reward")
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``

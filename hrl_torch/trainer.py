@@ -39,7 +39,7 @@ __all__ = ["TrainConfig", "TrainResult", "Trainer", "hparams_of", "warn_cpu_thre
 def checked_factory(factory: AgentFactory | None, env, learner: Learner) -> AgentFactory:
     """The agent factory; a ``ValueError`` unless the learner has a table set per agent."""
     if factory is None:
-        if getattr(env, "n_agents", None) is not None:
+        if env.n_agents is not None:
             raise ValueError(
                 "a multi-agent env needs agent_factory="
                 "hrl_torch.multiagent_factory.MultiAgentFactory(env.n_agents, config)"
@@ -98,7 +98,7 @@ class Trainer:
         self.P, self.E = env.n_learners, env.envs_per_learner
         self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()
-        self.steps = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
+        self.source = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
         skip = self.executor_config.on_bad_step == "skip"
         self.episodes = EpisodeTracker(
             env.batch_size, self.P, self.E, self.config.success_key, env.device, skip
@@ -124,7 +124,7 @@ class Trainer:
                 "evaluator": self.evaluator,
                 "eval_env": self.eval_env,
             },
-            flat=(self.steps, self.counters, self.history),
+            flat=(self.source, self.counters, self.history),
             optional=frozenset({"evaluator", "eval_env"}),
         )
 
@@ -150,7 +150,7 @@ class Trainer:
 
     def train_step(self) -> None:
         """One batched step: every row takes one primitive action, the learner updates."""
-        td, batch = self.steps.step(self.env)
+        td, batch = self.source.step(self.env)
         if self.agent.learn:
             self.agent.update(batch)
         if self.leaf_monitor is not None and batch is not None:
@@ -161,7 +161,7 @@ class Trainer:
 
     def close(self) -> None:
         """Stop the collector of the collector path (if one runs)."""
-        self.steps.close()
+        self.source.close()
 
     def train(self, steps: int | None = None, run_dir=None) -> TrainResult:
         """Train until ``steps`` env steps per learner (default ``config.steps``).
