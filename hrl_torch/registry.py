@@ -59,7 +59,14 @@ def load_module(module: str) -> list[str]:
     one that defines and registers no domain.
     """
     before = set(_DOMAINS)
-    mod = importlib.import_module(module)
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        if err.name == module:
+            raise
+        raise ValueError(f"module {module!r} failed to import: {_first_line(err)}") from err
+    except Exception as err:  # a module that raises while it imports: one line, not a traceback
+        raise ValueError(f"module {module!r} failed to import: {_first_line(err)}") from err
     specs = list(getattr(mod, "DOMAINS", []))
     if isinstance(getattr(mod, "DOMAIN", None), DomainSpec):
         specs.append(mod.DOMAIN)
@@ -91,9 +98,9 @@ def get(name: str) -> DomainSpec:
     module, attr = entry.split(":")
     try:
         spec = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
+    except Exception as err:  # a plugin that raises while it imports hides no other domain
         raise ValueError(
-            f"domain {name!r} ({_SOURCES[name]}): cannot load {entry} ({err})"
+            f"domain {name!r} ({_SOURCES[name]}): cannot load {entry} ({_first_line(err)})"
         ) from err
     if not isinstance(spec, DomainSpec):
         raise ValueError(f"domain {name!r} ({_SOURCES[name]}): {entry} is not a DomainSpec")
@@ -110,6 +117,11 @@ def _resolves_to(entry: str | DomainSpec, spec: str | DomainSpec) -> bool:
         return False
     module, attr = entry.split(":")
     return getattr(sys.modules.get(module), attr, None) is spec
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return f"{type(err).__name__}: {text.splitlines()[0]}" if text else type(err).__name__
 
 
 def _describe(entry: str | DomainSpec) -> str:

@@ -137,3 +137,20 @@ def test_the_multi_agent_walkthrough_domain_trains_from_the_cli(tmp_path, monkey
         episodes = (run_dir / "eval_episodes.csv").read_text()
         assert "agents.pos=" in episodes and "boxes=" in episodes
         assert (run_dir / "checkpoint.pt").exists()
+
+
+def test_a_module_that_raises_while_importing_is_one_line(tmp_path, capsys, monkeypatch):
+    (tmp_path / "broken_domains.py").write_text("raise RuntimeError('boom\\nsecond line')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_DOMAINS", dict(registry._DOMAINS))
+    monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
+    assert main(["--domain-module", "broken_domains", "list"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "hrl-torch: error: module 'broken_domains' failed to import: RuntimeError: boom"
+    ]
+    # installed as a plugin, it is one line of the list and hides no other domain
+    registry.register("broken", "broken_domains:DOMAIN", source="plugin broken")
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "broken [plugin broken]: domain 'broken' (plugin broken): cannot load" in out
+    assert "taxi [built-in]: " in out
