@@ -110,6 +110,8 @@ class EpisodicEvaluator(Evaluator):
         node indices, -1 after the last; the first ``MAX_DECISIONS`` only) and ``n_decisions``.
         """
         env, cfg, graph = trainer.eval_env, trainer.config, trainer.graph
+        if env is None:
+            raise ValueError("no evaluation env: give the Trainer an eval_env (eval_episodes > 0)")
         if env.rng is not None:
             env.rng.load_state_dict({"counter": 0})
         agent = trainer.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh

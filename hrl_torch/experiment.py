@@ -31,6 +31,10 @@ from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir
 from hrl_torch.signals import StopOnSignal
 from hrl_torch.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
+#: the most env rows (seeds x envs per seed) a run may ask for: a typo's 10**7 envs per seed
+#: was killed by the kernel's out-of-memory killer, not refused
+MAX_ROWS = 2**24
+
 
 @dataclass
 class RunOptions:
@@ -85,6 +89,13 @@ class RunOptions:
                 raise ValueError(f"RunOptions.{name} must be an integer >= {low}, got {value!r}")
         if not str(self.out).strip():
             raise ValueError("RunOptions.out must name a folder, got an empty string")
+        rows = len(self.seeds) * (self.envs_per_learner or 1)
+        if rows > MAX_ROWS:
+            raise ValueError(
+                f"{len(self.seeds)} seeds x {self.envs_per_learner} envs per seed = {rows:,} env "
+                f"rows, more than {MAX_ROWS:,} (each row keeps kilobytes of state: this machine "
+                "would run out of memory); use fewer envs per seed"
+            )
 
 
 #: what a checkpoint records of its run, besides the domain and algorithm
@@ -364,12 +375,17 @@ def _summary(domain, algo, opts, trainer, result, wall: float, plots, run_dir: P
     }
 
 
+#: episodes per seed ``evaluate_run`` plays for a run trained with ``eval_episodes=0``
+DEFAULT_EVAL_EPISODES = 10
+
+
 def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     """Re-evaluate a run folder's checkpoint: ``(trainer, records)``.
 
     ``records`` is ``Trainer.evaluate_episodes``'s TensorDict (one greedy episode per row;
     ``None`` for continuing domains, whose evaluation is a throughput). ``episodes`` changes
-    the number of evaluation episodes per seed (default: the run's). Nothing is written.
+    the number of evaluation episodes per seed (default: the run's, or
+    ``DEFAULT_EVAL_EPISODES`` for a run trained with none). Nothing is written.
     """
     path = Path(run_dir) / "checkpoint.pt"
     state = load_checkpoint(path)
@@ -377,8 +393,8 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
         raise ValueError(f"{path} records no run configuration (written by an older hrl-torch)")
     run = state["run"]
     opts = continue_options(path, run, progress=False, tensorboard=False)
-    if episodes is not None:
-        opts.eval_episodes = episodes
+    if episodes is not None or not opts.eval_episodes:  # a run trained without evaluation
+        opts.eval_episodes = episodes or DEFAULT_EVAL_EPISODES
     domain = registry.get(run["domain"])
     trainer = build_trainer(domain, run["algo"], opts)
     trainer.learner.load_state_dict(state["trainer"]["learner"])

@@ -24,6 +24,9 @@ CASES = {
         "seed 4294967296 is outside [0, 2**32): the random streams hash 32-bit seeds, so larger "
         "seeds would repeat smaller ones"
     ),
+    "--envs-per-seed 10000000 --seeds 2": "2 seeds x 10000000 envs per seed = 20,000,000 env "
+    "rows, more than 16,777,216 (each row keeps kilobytes of state: this machine would run out "
+    "of memory); use fewer envs per seed",
     "--seed-offset 9223372036854775807": "seed 9223372036854775807 is outside [0, 2**32): the "
     "random streams hash 32-bit seeds, so larger seeds would repeat smaller ones",
 }
@@ -214,3 +217,22 @@ def test_an_env_fault_while_training_is_one_line_and_leaves_a_clear_folder(
         summary = json.loads((runs[0] / "summary.json").read_text())
         assert summary["status"] == "failed" and summary["failed_at_step"] > 0
         assert (runs[0] / "progress.csv").exists() and "no checkpoint was written" in line
+
+
+def test_eval_of_a_run_trained_without_evaluation(tmp_path, capsys):
+    args = ["train", "taxi", "--algo", "q", "--seeds", "2", "--steps", "200", "--eval-episodes"]
+    assert main([*args, "0", "--out", str(tmp_path), "--no-progress", "--no-tensorboard"]) == 0
+    (run_dir,) = tmp_path.iterdir()
+    capsys.readouterr()
+    assert main(["eval", str(run_dir)]) == 0  # plays DEFAULT_EVAL_EPISODES per seed
+    assert "seed 0" in capsys.readouterr().out
+
+
+def test_evaluate_without_an_eval_env_names_it():
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    opts = RunOptions(seeds=[0], envs_per_learner=2, eval_episodes=0, progress=False)
+    trainer = build_trainer(registry.get("taxi"), "q", opts)
+    with pytest.raises(ValueError, match="no evaluation env"):
+        trainer.evaluate()
