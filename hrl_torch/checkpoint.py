@@ -120,7 +120,13 @@ class Checkpointer:
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict``; on any mismatch nothing changes and ``CheckpointError`` rises."""
+        """Restore ``state_dict``; on any mismatch nothing changes and ``CheckpointError`` rises.
+
+        A learned tensor holding NaN (a table no update can have written) is such a mismatch.
+        """
+        for key, value in (state.get("learner") or {}).items():
+            if torch.is_tensor(value) and value.is_floating_point() and value.isnan().any():
+                raise CheckpointError(f"checkpoint does not fit this run: learner {key} holds NaN")
         backup = copy.deepcopy(self.state_dict())
         try:
             self._apply(state)

@@ -342,3 +342,18 @@ def test_a_checkpoint_that_does_not_fit_is_one_line_and_changes_nothing(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("hrl-torch: error: ") and "fit" in err[0], err
     assert snapshot(run_dir) == before  # hparams.json, CSVs, TensorBoard: untouched
+
+
+def test_a_checkpoint_whose_tables_hold_nan_is_refused(tmp_path, capsys):
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    key = next(k for k in state["trainer"]["learner"] if k.endswith(".C"))
+    state["trainer"]["learner"][key].view(-1)[0] = float("nan")
+    torch.save(state, run_dir / "checkpoint.pt")
+    before = snapshot(run_dir)
+    capsys.readouterr()
+    assert resume(run_dir, "--steps", "800") == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"hrl-torch: error: checkpoint does not fit this run: learner {key} holds NaN"
+    assert snapshot(run_dir) == before
