@@ -205,10 +205,16 @@ class BatchedEnv:
         state.update(
             elapsed=self.elapsed.clone(), done=self.done.clone(), rng=self.rng.state_dict()
         )
+        state["seeds"] = list(self.seeds)  # whose streams these are (checked on load)
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore a ``state_dict``; shapes must match this env."""
+        """Restore a ``state_dict``; shapes and seeds must match this env."""
+        if "seeds" in state and list(state["seeds"]) != list(self.seeds):
+            raise ValueError(
+                f"env state of seeds {list(state['seeds'])}, but this env runs seeds "
+                f"{list(self.seeds)}: the tables would continue under other seeds' labels"
+            )
         for k in (*self.state_keys, "elapsed", "done"):
             value = state[k]
             current = getattr(self, k)

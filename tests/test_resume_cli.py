@@ -357,3 +357,18 @@ def test_a_checkpoint_whose_tables_hold_nan_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == f"hrl-torch: error: checkpoint does not fit this run: learner {key} holds NaN"
     assert snapshot(run_dir) == before
+
+
+def test_a_checkpoint_whose_recorded_seeds_were_edited_is_refused(tmp_path, capsys):
+    assert train(tmp_path, "--steps", "400") == 0
+    run_dir = the_run(tmp_path)
+    for seeds in ([5, 6], [0, 1, 2]):
+        state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+        state["run"]["seeds"] = seeds
+        torch.save(state, run_dir / "edited.pt")
+        before = snapshot(run_dir)
+        capsys.readouterr()
+        assert main(["train", "--resume", str(run_dir / "edited.pt"), "--steps", "800"]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith("hrl-torch: error: checkpoint does not fit this run: "), line
+        assert snapshot(run_dir) == before and not (run_dir / "tb" / "seed_2").exists()
