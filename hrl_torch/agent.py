@@ -305,3 +305,21 @@ class SingleAgentFactory:
     def training_metrics(self, graph, calls) -> dict[str, list[float]]:
         """None."""
         return {}
+
+
+def checked_factory(factory: AgentFactory | None, env, learner: Learner, graph) -> AgentFactory:
+    """The agent factory; a ``ValueError`` unless the learner fits ``graph`` and the agents."""
+    shape = [(n.name, n.n_states) for n in graph.nodes]
+    if [(n.name, n.n_states) for n in learner.graph.nodes] != shape:
+        raise ValueError("the learner was built on another task graph (nodes or their states)")
+    if factory is None:
+        if env.n_agents is not None:
+            raise ValueError(
+                "a multi-agent env needs agent_factory="
+                "hrl_torch.multiagent_factory.MultiAgentFactory(env.n_agents, config)"
+            )
+        factory = SingleAgentFactory()
+    sets = factory.table_sets(env.n_learners)
+    if learner.n_learners != sets:
+        raise ValueError(f"learner has {learner.n_learners} table sets, the env needs {sets}")
+    return factory

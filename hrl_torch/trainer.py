@@ -18,7 +18,7 @@ import torch
 from tensordict import TensorDict
 from tqdm import tqdm
 
-from hrl_torch.agent import AgentFactory, HierarchicalAgent, SingleAgentFactory
+from hrl_torch.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.checkpoint import Checkpointer
 from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
 from hrl_torch.executor import ExecutorConfig
@@ -34,21 +34,6 @@ from hrl_torch.threads import warn_cpu_threads
 from hrl_torch.training import TrainConfig, TrainResult
 
 __all__ = ["TrainConfig", "TrainResult", "Trainer", "hparams_of", "warn_cpu_threads"]
-
-
-def checked_factory(factory: AgentFactory | None, env, learner: Learner) -> AgentFactory:
-    """The agent factory; a ``ValueError`` unless the learner has a table set per agent."""
-    if factory is None:
-        if env.n_agents is not None:
-            raise ValueError(
-                "a multi-agent env needs agent_factory="
-                "hrl_torch.multiagent_factory.MultiAgentFactory(env.n_agents, config)"
-            )
-        factory = SingleAgentFactory()
-    sets = factory.table_sets(env.n_learners)
-    if learner.n_learners != sets:
-        raise ValueError(f"learner has {learner.n_learners} table sets, the env needs {sets}")
-    return factory
 
 
 class Trainer:
@@ -94,7 +79,7 @@ class Trainer:
         self.config = config or TrainConfig()
         self.executor_config = executor_config or ExecutorConfig()
         self.eval_env, self.logger = eval_env, logger
-        self.agents = checked_factory(agent_factory, env, learner)
+        self.agents = checked_factory(agent_factory, env, learner, graph)
         self.P, self.E = env.n_learners, env.envs_per_learner
         self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()

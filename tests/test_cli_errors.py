@@ -236,3 +236,17 @@ def test_evaluate_without_an_eval_env_names_it():
     trainer = build_trainer(registry.get("taxi"), "q", opts)
     with pytest.raises(ValueError, match="no evaluation env"):
         trainer.evaluate()
+
+
+def test_a_learner_built_on_another_graph_is_named():
+    from agents.taxi import taxi_hierarchy
+    from agents.taxi_fuel import taxi_fuel_hierarchy
+    from envs.taxi import TaxiEnv
+    from hrl_torch.exploration import Greedy
+    from hrl_torch.learners import MaxQLearner
+    from hrl_torch.trainer import Trainer
+
+    learner = MaxQLearner(taxi_fuel_hierarchy(), 1)
+    with pytest.raises(ValueError, match="the learner was built on another task graph"):
+        Trainer(TaxiEnv([0], 2), taxi_hierarchy(), learner, Greedy())
+    Trainer(TaxiEnv([0], 2), taxi_hierarchy(), MaxQLearner(taxi_hierarchy(), 1), Greedy())
