@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 
@@ -35,6 +36,16 @@ class TrainConfig:
     progress: bool = True
     success_key: str = "terminated"
     check_leaf_rewards: bool = False
+
+    def __post_init__(self) -> None:
+        lowest = {"steps": 0, "eval_every": 0, "eval_episodes": 0, "eval_max_steps": 1}
+        lowest |= {"log_every": 1, "checkpoint_every": 0}
+        for name, low in lowest.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"TrainConfig.{name} must be an integer >= {low}, got {value!r}")
+        if self.threshold is not None and not math.isfinite(self.threshold):
+            raise ValueError(f"TrainConfig.threshold must be finite, got {self.threshold!r}")
 
 
 @dataclass

@@ -250,3 +250,11 @@ def test_a_learner_built_on_another_graph_is_named():
     with pytest.raises(ValueError, match="the learner was built on another task graph"):
         Trainer(TaxiEnv([0], 2), taxi_hierarchy(), learner, Greedy())
     Trainer(TaxiEnv([0], 2), taxi_hierarchy(), MaxQLearner(taxi_hierarchy(), 1), Greedy())
+
+
+def test_train_config_refuses_negative_intervals():
+    from hrl_torch.trainer import TrainConfig
+
+    for bad in ({"eval_every": -5}, {"steps": -1}, {"log_every": 0}, {"threshold": float("nan")}):
+        with pytest.raises(ValueError, match="TrainConfig"):
+            TrainConfig(**bad)
