@@ -84,3 +84,23 @@ def test_the_training_loop_imports_nothing_multi_agent():
             seen.add(m)
             todo += graph[m]
     assert not {m for m in seen if "multiagent" in m}, sorted(seen)
+
+
+def test_modules_and_classes_stay_small():
+    # the house rules (issue 23): no module over 600 lines, no class over 20 methods, a
+    # training loop under 350 lines
+    long = {
+        str(p.relative_to(ROOT)): n
+        for p in PACKAGE.rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > 600
+    }
+    assert long == {}
+    big = {}
+    for p in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ClassDef):
+                n = sum(isinstance(b, ast.FunctionDef | ast.AsyncFunctionDef) for b in node.body)
+                if n > 20:
+                    big[f"{p.relative_to(ROOT)}:{node.name}"] = n
+    assert big == {}
+    assert len((PACKAGE / "trainer.py").read_text().splitlines()) <= 350
