@@ -9,6 +9,7 @@ did). A curve of one evaluation is drawn as points with the interval as error ba
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -125,7 +126,8 @@ def plot_curves(
         draw_seeds(ax, steps, matrix, "this run")
         draw_references(ax, reference)
         ax.set_xlabel("env steps per learner (seed)")
-        ax.set_ylabel(axis_label(metric, (units or {}).get(metric)))
+        label = axis_label(metric, (units or {}).get(metric))
+        ax.set_ylabel("\n".join(textwrap.wrap(label, 42)), fontsize=9)
         ax.set_title(title or metric, fontsize=10)
         ax.legend(fontsize=7, loc="best")
         ax.grid(alpha=0.3)
