@@ -27,7 +27,7 @@ from hrl_torch.multiagent_factory import MultiAgentFactory
 from hrl_torch.plots import plot_curves
 from hrl_torch.rng import check_seeds
 from hrl_torch.runlock import RunLock
-from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir
+from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir, settings_of
 from hrl_torch.signals import StopOnSignal
 from hrl_torch.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
@@ -327,6 +327,11 @@ def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: 
         trainer = build_trainer(domain, algo, opts)
         if state is not None:
             trainer.load_state_dict(state["trainer"])
+        hparams = {  # the learner's and the exploration's own settings, as built
+            **hparams,
+            "learner": settings_of(trainer.learner),
+            "exploration": settings_of(trainer.exploration),
+        }
         logger = RunLogger(
             run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
         )

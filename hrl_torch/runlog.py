@@ -57,6 +57,19 @@ def code_version() -> dict:
     return out
 
 
+def settings_of(obj) -> dict:
+    """An object's class and its plain settings (numbers, strings, flags, schedules)."""
+    out: dict = {"class": type(obj).__name__}
+    for key, value in vars(obj).items():
+        if key.startswith("_") or key == "training":  # private state; nn.Module's mode flag
+            continue
+        if isinstance(value, (bool, int, float, str)):
+            out[key] = value
+        elif is_dataclass(value):  # a schedule (Linear(...)) or an option group (PGConfig)
+            out[key] = repr(value)
+    return out
+
+
 def hparams_of(**parts) -> dict:
     """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
     out = {}

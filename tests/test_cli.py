@@ -51,6 +51,9 @@ def test_train_writes_a_run_folder_and_resumes(tmp_path, capsys):
     assert hparams["train.steps"] == 800 and hparams["train.eval_every"] == 400
     assert hparams["envs_per_learner"] == 8
     assert set(hparams["code"]) == {"version", "commit", "dirty"}
+    assert hparams["learner"]["class"] == "MaxQLearner" and hparams["learner"]["gamma"] == 1.0
+    assert hparams["learner"]["alpha"] == "Constant(value=0.5)"
+    assert hparams["exploration"]["epsilon"].startswith("Linear(start=1.0, end=0.05")
     from hrl_torch.checkpoint import load_checkpoint
 
     assert load_checkpoint(run_dir / "checkpoint.pt")["run"]["code"] == hparams["code"]
