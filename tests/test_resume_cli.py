@@ -372,3 +372,29 @@ def test_a_checkpoint_whose_recorded_seeds_were_edited_is_refused(tmp_path, caps
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert line.startswith("hrl-torch: error: checkpoint does not fit this run: "), line
         assert snapshot(run_dir) == before and not (run_dir / "tb" / "seed_2").exists()
+
+
+def test_a_full_disk_at_a_checkpoint_is_one_line_and_keeps_the_previous_one(
+    tmp_path, capsys, monkeypatch
+):
+    import hrl_torch.checkpoint as checkpoint_module
+
+    save, calls = checkpoint_module.torch.save, []
+
+    def full_disk_from_the_second_write(obj, path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) > 1:
+            raise RuntimeError(
+                "[enforce fail at inline_container.cc:664] . unexpected pos\\n"
+                "basic_ios::clear: iostream error"
+            )
+        return save(obj, path, *args, **kwargs)
+
+    monkeypatch.setattr(checkpoint_module.torch, "save", full_disk_from_the_second_write)
+    assert train(tmp_path, "--steps", "800", "--checkpoint-every", "200") == 1
+    run_dir = the_run(tmp_path)
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("hrl-torch: failed: ") and "continue from step 4 with" in line, line
+    assert load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["step"] == 4
+    assert not list(run_dir.glob("*.tmp"))
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "failed"
