@@ -177,6 +177,11 @@ class Subtask(nn.Module):
             return None
         return fn(obs, action, next_obs, memory) if self.memory_size else fn(obs, action, next_obs)
 
+    def has_shaping_rewards(self) -> bool:
+        """Whether this subtask defines per-step shaping rewards."""
+        overridden = type(self).shaping_reward is not Subtask.shaping_reward
+        return overridden or self._fns["shaping_reward"] is not None
+
     def has_internal_rewards(self) -> bool:
         """Whether this subtask defines pseudo or shaping rewards (so internal != external)."""
         cls = type(self)
@@ -535,10 +540,7 @@ class TaskGraph(nn.Module):
         """Which nodes have internal rewards, custom predicates, features and memory."""
         self.internal_nodes = [k for k, x in enumerate(self.nodes) if x.has_internal_rewards()]
         self.shaping_nodes = [
-            k
-            for k, x in enumerate(self.nodes)
-            if not x.is_primitive
-            and (type(x).shaping_reward is not Subtask.shaping_reward or x._fns["shaping_reward"])
+            k for k, x in enumerate(self.nodes) if not x.is_primitive and x.has_shaping_rewards()
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``
