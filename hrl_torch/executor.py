@@ -26,9 +26,11 @@ TensorDicts (their keys are the constants ``LEVEL`` and ``PRIMITIVE``):
   own abstract state and ``child`` is 0), when the step teaches; the same step as
   ``batch[PRIMITIVE]``, placed on its level so that one update can reach ``C`` of the finished
   children and ``V`` of the primitive;
-- with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``
-  ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node`` during the child, from
-  where it started to the step before ``s'`` (all-states updating), the most recent ``L`` kept;
+- with ``record_visited = L > 0``: ``visited_state``, ``visited_steps``, ``visited_time``,
+  ``visited_internal`` ``[B, D, L]`` and their mask ``visited_valid``: the states of ``node``
+  during the child, from where it started to the step before ``s'`` (all-states updating), the
+  most recent ``L`` kept, with the steps, time and discounted shaping reward (of ``node``,
+  discounted to the child's start) accumulated before each;
 - with feature nodes (``Subtask.features``): ``features`` / ``next_features``
   ``[B, D, F]``, the node's continuous features where the child started / at ``s'``;
 - with a policy that scores its choices (PG nodes): ``score_index`` / ``score_value``
@@ -493,6 +495,7 @@ class HierarchicalExecutor:
             f["vis_state"] = torch.where(first_visit, f["start_state"][..., None], f["vis_state"])
             f["vis_steps"] = f["vis_steps"].masked_fill(first_visit, 0)
             f["vis_time"] = f["vis_time"].masked_fill(first_visit, 0.0)
+            f["vis_internal"] = f["vis_internal"].masked_fill(first_visit, 0.0)
         if g.memory_nodes:  # a new invocation remembers where it started
             started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
             started = started.scatter_add(1, node, invoked.float()) > 0
@@ -647,6 +650,7 @@ class HierarchicalExecutor:
             ("vis_state", state),
             ("vis_steps", f["steps"]),
             ("vis_time", f["time"]),
+            ("vis_internal", f["internal"]),
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
@@ -696,6 +700,7 @@ class HierarchicalExecutor:
                 visited_state=f["vis_state"],
                 visited_steps=f["vis_steps"],
                 visited_time=f["vis_time"],
+                visited_internal=f["vis_internal"],
                 visited_valid=self._visit_slots
                 < f["steps"].clamp_max(self.config.record_visited)[..., None],
             )
