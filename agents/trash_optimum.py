@@ -81,6 +81,88 @@ def hierarchical_optimum(n_agents: int = 2, refill_prob: float = 0.1) -> float:
     return optimal_gain(nxt, prob, reward)
 
 
+def optimal_policy(nxt, prob, reward, tol: float = 1e-10, max_iter: int = 100_000):
+    """A gain-optimal choice per state of ``hierarchy_model`` (relative value iteration)."""
+    h = torch.zeros(nxt.shape[0], dtype=torch.float64)
+    for _ in range(max_iter):
+        q = reward + (h[nxt] * prob).sum(-1)
+        t = 0.5 * (h + q.amax(1))
+        new = t - t[0]
+        if float((new - h).abs().max()) < tol:
+            return q.argmax(1)
+        h = new
+    raise RuntimeError(f"relative value iteration did not converge in {max_iter} iterations")
+
+
+def projected_gain(refill_prob: float = 0.1, selfish: bool = False) -> tuple[float, float]:
+    """``(gain of the joint-state optimum, gain of its projection on the cooperative root)``.
+
+    ``selfish``: project on what a selfish root sees instead (its cell and the cans only).
+
+    Two robots. The projection chooses, for each robot and what its cooperative root sees (its
+    cell and the cans when it chooses, and the other robot's task as sequential broadcast
+    shows it: robot 0 the other's running task or none, robot 1 also robot 0's fresh choice),
+    the choice the optimum makes most often there in its stationary distribution. It is a
+    policy the cooperative root can express, so its exact gain bounds the best such policy
+    from below (the joint-state optimum bounds it from above).
+    """
+    nxt, prob, reward, s = hierarchy_model(2, refill_prob)
+    z = torch.arange(len(s))
+    best = optimal_policy(nxt, prob, reward)
+    start = _start(s, refill_prob)
+    gain, weight = _gain_and_occupancy(nxt[z, best], prob, reward[z, best], start)
+    task = _digits(z % 9, 2)
+    state = decode(s, 2)
+    cans = state["cans"][:, 0].long() + 2 * state["cans"][:, 1].long()
+    own = state["location"] * 4 + cans[:, None]  # [Z, 2] (an empty robot chooses)
+    digit = torch.stack([best // 3, best % 3], 1)
+    tell = 0 if selfish else 1  # (a selfish root sees no task: code 0 for all)
+    seen = torch.stack(
+        [own[:, 0] * 4 + tell * task[:, 1], own[:, 1] * 4 + tell * _fresh(task, digit[:, 0])], 1
+    )
+    rule = []
+    for j in range(2):
+        votes = torch.zeros(N_CELLS * 16, 3, dtype=torch.float64)
+        chooses = task[:, j] == 0
+        votes.index_put_((seen[chooses, j], digit[chooses, j]), weight[chooses] + 1e-12, True)
+        rule.append(votes.argmax(1))
+    c0 = torch.where(task[:, 0] == 0, rule[0][seen[:, 0]], task[:, 0] - 1)
+    c1 = rule[1][own[:, 1] * 4 + tell * _fresh(task, c0)]
+    c1 = torch.where(task[:, 1] == 0, c1, task[:, 1] - 1)
+    choice = c0 * 3 + c1
+    wait = torch.isinf(reward[z, choice])  # a can the rule wants is empty here: wait instead
+    choice = torch.where(wait & (task[:, 0] == 0), 6 + c1, choice)
+    choice = torch.where(torch.isinf(reward[z, choice]), choice - choice % 3 + 2, choice)
+    projected, _ = _gain_and_occupancy(nxt[z, choice], prob, reward[z, choice], start)
+    return gain, projected
+
+
+def _fresh(task: torch.Tensor, c0: torch.Tensor) -> torch.Tensor:
+    """Robot 0's task as robot 1 sees it: running (1, 2), or just chosen (1, 2, 3 = Wait)."""
+    return torch.where(task[:, 0] == 0, c0 + 1, task[:, 0])
+
+
+def _start(s: torch.Tensor, refill_prob: float) -> torch.Tensor:
+    """Both robots choose at the env's start states."""
+    start = torch.zeros(len(s), dtype=torch.float64)
+    first = exact_model(2, refill_prob).start_distribution()
+    start[first.nonzero().squeeze(1) * 9] = first[first > 0]
+    return start
+
+
+def _gain_and_occupancy(nxt, prob, reward, start, iters: int = 200_000, tol: float = 1e-13):
+    """Gain and long-run state occupancy of a chain ``nxt [Z, K]`` from ``start``."""
+    src = torch.arange(len(start)).repeat_interleave(len(prob))
+    dst, w = nxt.reshape(-1), prob.repeat(len(start))
+    d = start.clone()
+    for _ in range(iters):
+        new = 0.5 * (d + torch.zeros_like(d).index_add_(0, dst, d[src] * w))
+        if float((new - d).abs().sum()) < tol:
+            return float(new @ reward), new
+        d = new
+    raise RuntimeError("the chain's distribution did not settle")
+
+
 def _digits(x: torch.Tensor, n: int) -> torch.Tensor:
     powers = N_TASKS ** torch.arange(n - 1, -1, -1)
     return (x[:, None] // powers) % N_TASKS
@@ -91,4 +173,11 @@ def _number(d: torch.Tensor) -> torch.Tensor:
     return (d * N_TASKS ** torch.arange(n - 1, -1, -1)).sum(-1)
 
 
-__all__ = ["distances", "hierarchical_optimum", "hierarchy_model", "lower_action"]
+__all__ = [
+    "distances",
+    "hierarchical_optimum",
+    "hierarchy_model",
+    "lower_action",
+    "optimal_policy",
+    "projected_gain",
+]

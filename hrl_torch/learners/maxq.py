@@ -46,6 +46,8 @@ class MaxQLearner(TabularLearner):
         init: initial completion values (see docs/design.md on initialisation and loops).
         init_internal: initial internal completions ``C~`` (default: ``init``), e.g.
             pessimistic ones for subtasks whose internal rewards are step costs.
+        init_nodes: initial completions (``C`` and ``C~``) of the named subtasks instead,
+            e.g. optimistic ones at a cooperative root so that every joint choice is tried.
     """
 
     uses = frozenset()
@@ -60,6 +62,7 @@ class MaxQLearner(TabularLearner):
         per_instance: bool = False,
         init: float = 0.0,
         init_internal: float | None = None,
+        init_nodes: dict[str, float] | None = None,
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.all_states = all_states
@@ -83,6 +86,11 @@ class MaxQLearner(TabularLearner):
             self.share_store(C=self.C, V=self.V)
         internal = {"C_int": self.C_int} if self.internal else {}
         self.attach_heads(C=self.C, **internal, V=self.V)
+        for name, value in (init_nodes or {}).items():  # initial completions of some nodes
+            if name not in graph.index or graph.node(name).is_primitive:
+                raise GraphError(f"init_nodes: {name!r} is not a subtask of the graph")
+            for key in ("C", "C_int") if self.internal else ("C",):
+                self.heads[name][key].fill_(float(value))
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:

@@ -84,3 +84,13 @@ def test_all_states_refused_where_an_internal_reward_reads_the_invocations_memor
         MaxQLearner(graph, 1, all_states=True)
     MaxQLearner(graph, 1)  # fine without all-states updating
     assert torch.is_tensor(MaxQLearner(graph, 1).C.store)
+
+
+def test_init_nodes_sets_the_initial_completions_of_the_named_subtasks_only():
+    graph, _ = per_state_chain(internal_rewards=True)
+    learner = MaxQLearner(graph, 2, init=-10.0, init_nodes={"Root": 0.0})
+    h = learner.heads
+    assert bool((h["Root"]["C"] == 0).all()) and bool((h["Root"]["C_int"] == 0).all())
+    assert bool((h["Go2"]["C"] == -10).all()) and bool((h["Go3"]["C_int"] == -10).all())
+    with pytest.raises(GraphError, match="not a subtask"):
+        MaxQLearner(graph, 1, init_nodes={"Right": 0.0})
