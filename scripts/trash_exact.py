@@ -52,10 +52,12 @@ def observe_states(n_agents: int):
     return observe
 
 
-def exact_gains(trainer, algo: str, n_agents: int, refill_prob: float) -> list[float]:
-    """The exact gain of each seed's greedy joint policy."""
+def exact_gains(trainer, algo: str, n_agents: int, refill_prob: float, config=None) -> list[float]:
+    """The exact gain of each seed's greedy joint policy (``config``: the agents' multi-agent
+    configuration, default the registered algorithm's)."""
     model = exact_model(n_agents, refill_prob)
-    config = registry.get("trash").algos[algo].multiagent or MultiAgentConfig()
+    if config is None:
+        config = registry.get("trash").algos[algo].multiagent or MultiAgentConfig()
     gains = []
     for p in range(trainer.P):
 
