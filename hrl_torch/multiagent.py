@@ -17,12 +17,14 @@ subtask's abstract state is extended by the *other* agents' current ``U_l`` subt
 of Equation 6.1 and the unchanged two-part learners (MAXQ-Q here) learn Equation 6.3: the
 state where a child started carries the others' actions then, ``s'`` the others' actions at
 its end (Algorithm 4's ``Seq``; with all-states updating every visited state carries the
-actions at that state). The others' actions are read from their Task-Stacks as they were
-after the previous step's pushes: choices made at the same decision epoch do not see each
-other (broadcast is instant but simultaneous). An agent with no ``U_l`` subtask (only at a
-reset) counts as doing ``Cooperation.idle``. The projected value ``V(a, s)`` a cooperative
-parent reads from a cooperative child is the child's value at the others' current actions
-(the text marginalizes over them; conditioning uses what the agent knows).
+actions at that state). The others' actions are read from their Task-Stacks; agents that
+choose at the same step choose in agent order, each seeing the earlier ones' fresh choices
+(``Cooperation.broadcast``, ``hrl_torch.broadcast``; ``"simultaneous"``: the Task-Stacks of
+the previous step, so choices at the same epoch do not see each other). An agent with no
+``U_l`` subtask (at a reset, or whose subtask just ended) counts as doing
+``Cooperation.idle``. The projected value ``V(a, s)`` a cooperative parent reads from a
+cooperative child is the child's value at the others' current actions (the text marginalizes
+over them; conditioning uses what the agent knows).
 
 **Termination schemes** (Section 6.1) at the first cooperation level:
 
