@@ -73,7 +73,8 @@ def exact_gains(trainer, algo: str, n_agents: int, refill_prob: float, config=No
                 evaluate=True,
                 cooperation=config.cooperation,
                 scheme=config.scheme,
-                first_table=p * n_agents,
+                shared_tables=config.shared_tables,
+                first_table=p * config.table_sets(1, n_agents),
             )
 
         chain = joint_chain(

@@ -44,6 +44,7 @@ def _arguments() -> argparse.Namespace:
     p.add_argument("--visited", type=int, default=0, help="all-states updating, visits kept")
     p.add_argument("--team-root", action="store_true", help="others' dumps: root's internal r")
     p.add_argument("--two-levels", action="store_true", help="Collect subtasks cooperative too")
+    p.add_argument("--shared-tables", action="store_true", help="both robots learn one table")
     return p.parse_args()
 
 
@@ -84,7 +85,9 @@ def _variant(a: argparse.Namespace):
         executor=ExecutorConfig(record_visited=a.visited),
     )
     if a.algo == "cooperative":
-        config = replace(spec.multiagent, cooperation=cooperation, scheme=a.scheme)
+        config = replace(
+            spec.multiagent, cooperation=cooperation, scheme=a.scheme, shared_tables=a.shared_tables
+        )
         spec = replace(
             spec, make_graph=lambda: T.cooperative_graph(base(), cooperation, 2), multiagent=config
         )
