@@ -51,11 +51,12 @@ def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.T
     return (others * weights).sum(-1).view(-1)
 
 
-def choose_in_order(agent, rows, fixed: dict) -> tuple[torch.Tensor, object]:
+def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, object]:
     """Push children for every agent row, agents of one env row choosing in index order.
 
     ``rows``: the step as agent rows (``MultiAgentAgent._rows``); ``fixed``: the levels whose
-    codes are not broadcast (a communicating level's replies), by index, kept as in ``rows``.
+    codes are not broadcast (a communicating level's replies), by index, kept as in ``rows``;
+    ``ctx``: the evaluated context of ``rows``, used as it is where no code changed.
     Returns the actions ``[B * n]`` and the context whose values the learning targets read
     (each row's codes as it saw them when choosing).
     """
@@ -64,7 +65,8 @@ def choose_in_order(agent, rows, fixed: dict) -> tuple[torch.Tensor, object]:
     post = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     agent.epoch_codes = post
     used = [_codes(agent, k, post[k], post[k], rows, fixed) for k in range(len(agent.levels))]
-    ctx = agent.context(_with_codes(agent, rows, used))
+    if ctx is None or _changed(agent, rows, used):
+        ctx = agent.context(_with_codes(agent, rows, used))
     action = ex.act(ctx, agent.policy, agent.clock)
     invoked = ex.invoked
     for _ in range(n - 1):
@@ -87,6 +89,11 @@ def choose_in_order(agent, rows, fixed: dict) -> tuple[torch.Tensor, object]:
     if any(bool((c != u).any()) for c, u in zip(codes, used, strict=True)):
         ctx = agent.context(_with_codes(agent, rows, codes))  # the targets' codes
     return action, ctx
+
+
+def _changed(agent, rows, codes: list[torch.Tensor]) -> bool:
+    """Whether ``codes`` differ from those of ``rows`` anywhere."""
+    return any(bool((rows[lv.key] != c).any()) for lv, c in zip(agent.levels, codes, strict=True))
 
 
 def _codes(agent, k: int, post, final, rows, fixed: dict) -> torch.Tensor:

@@ -358,9 +358,9 @@ class MultiAgentAgent(HierarchicalAgent):
         """Steps 1-4 on an env step ``[B]``: ``(actions [B, n], transitions of agent rows)``."""
         rows = self._rows(td)
         if self._in_order:  # observe as before, then choose in agent order
-            ctx = self.graph.context(rows, self.rows, self.executor.memory)
+            ctx = self.context(rows)  # (the choices reuse it where no code changes)
             batch = self.executor.observe(rows, ctx, transitions=self.transitions)
-            action, ctx = choose_in_order(self, rows, self._fixed_levels)
+            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx)
             self.batch = batch if batch is None else with_values(batch, ctx)
         else:
             action, batch = super().decide(rows)
