@@ -320,8 +320,13 @@ class MultiAgentAgent(HierarchicalAgent):
             self._com = CommunicationLevel(self, communication)
             self.executor.interrupt = self._end_communication
         self.set_policy(self.policy)
-        #: agents choose in index order within a step (``Cooperation.broadcast``); a
-        #: communicating level keeps its replies (``_fixed_levels``)
+        self._init_broadcast(cooperation, communication)
+
+    def _init_broadcast(self, cooperation, communication) -> None:
+        """Set up the broadcast rule (``Cooperation.broadcast``).
+
+        Agents choose in index order within a step; a communicating level keeps its replies.
+        """
         self._in_order = bool(self.levels) and cooperation.broadcast == "sequential"
         #: every agent's ``U_l`` codes after this step's pops, per level ``[B, n]``
         self.epoch_codes: list[torch.Tensor] | None = None
