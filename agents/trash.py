@@ -51,6 +51,8 @@ abstraction keeps only what the robot's own action changes.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 from tensordict import TensorDict
 
@@ -198,6 +200,18 @@ def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
     return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA, init=INIT)
 
 
+#: initial joint completions of the cooperative root: optimistic (0, not ``INIT``), so that a
+#: robot tries each choice with each task of the other robot (4 x as many root entries as a
+#: selfish root; with -10 most stayed untried: exact gain 1.367 -> 1.416, 5 seeds)
+COOPERATIVE_ROOT_INIT = 0.0
+
+
+def _maxq_cooperative(graph: TaskGraph, sets: int) -> MaxQLearner:
+    return MaxQLearner(
+        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_nodes={"Root": COOPERATIVE_ROOT_INIT}
+    )
+
+
 def _epsilon(config: TrainConfig) -> EpsilonGreedy:
     return EpsilonGreedy(Linear(0.5, 0.02, config.steps // 2))
 
@@ -216,10 +230,13 @@ def _algos() -> dict[str, AlgoSpec]:
     )
 
     return {
-        "cooperative": spec(
-            lambda: cooperative_graph(trash_hierarchy(), COOPERATION, 2),
-            "Cooperative HRL: the root's completions know the other robot's U_1 task",
-            MultiAgentConfig(COOPERATION),
+        "cooperative": replace(
+            spec(
+                lambda: cooperative_graph(trash_hierarchy(), COOPERATION, 2),
+                "Cooperative HRL: the root's completions know the other robot's U_1 task",
+                MultiAgentConfig(COOPERATION),
+            ),
+            make_learner=_maxq_cooperative,
         ),
         "selfish": spec(trash_hierarchy, "selfish multi-agent HRL: each robot learns alone"),
         "single": spec(trash_hierarchy, "single-agent HRL: one robot", n_agents=1),

@@ -175,6 +175,18 @@ class HierarchicalExecutor:
         """The agent rows acting at the current step ``[B]`` (``None``: every row acts)."""
         return self._acting
 
+    def fields(self) -> dict[str, torch.Tensor]:
+        """The stacks' fields now (``rewind`` puts rows back to them)."""
+        return dict(self._fields)
+
+    def rewind(self, fields: dict[str, torch.Tensor], acting: torch.Tensor) -> None:
+        """Put the stacks back to ``fields``; only the ``acting`` rows act at the next ``act``.
+
+        (Agents that choose again in one step: ``hrl_torch.broadcast.choose_in_order``.)
+        """
+        self._replace(fields)
+        self._acting = acting
+
     def continue_rows(self, other: HierarchicalExecutor, rows: torch.Tensor) -> None:
         """Take over the rows ``rows`` of ``other`` in their current state (this has ``len(rows)``).
 
@@ -308,6 +320,7 @@ class HierarchicalExecutor:
             f["vis_state"] = torch.where(first_visit, f["start_state"][..., None], f["vis_state"])
             f["vis_steps"] = f["vis_steps"].masked_fill(first_visit, 0)
             f["vis_time"] = f["vis_time"].masked_fill(first_visit, 0.0)
+            f["vis_internal"] = f["vis_internal"].masked_fill(first_visit, 0.0)
         if g.memory_nodes:  # a new invocation remembers where it started
             started = torch.zeros(self.batch_size, g.n_nodes, device=self.device)
             started = started.scatter_add(1, node, invoked.float()) > 0

@@ -92,7 +92,7 @@ class TaskGraph(nn.Module):
         self.shaping_nodes = [
             k
             for k, x in enumerate(self.nodes)
-            if not x.is_primitive and overrides(x, "shaping_reward")
+            if not x.is_primitive and x.has_shaping_rewards()
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``

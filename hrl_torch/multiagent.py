@@ -17,12 +17,14 @@ subtask's abstract state is extended by the *other* agents' current ``U_l`` subt
 of Equation 6.1 and the unchanged two-part learners (MAXQ-Q here) learn Equation 6.3: the
 state where a child started carries the others' actions then, ``s'`` the others' actions at
 its end (Algorithm 4's ``Seq``; with all-states updating every visited state carries the
-actions at that state). The others' actions are read from their Task-Stacks as they were
-after the previous step's pushes: choices made at the same decision epoch do not see each
-other (broadcast is instant but simultaneous). An agent with no ``U_l`` subtask (only at a
-reset) counts as doing ``Cooperation.idle``. The projected value ``V(a, s)`` a cooperative
-parent reads from a cooperative child is the child's value at the others' current actions
-(the text marginalizes over them; conditioning uses what the agent knows).
+actions at that state). The others' actions are read from their Task-Stacks; agents that
+choose at the same step choose in agent order, each seeing the earlier ones' fresh choices
+(``Cooperation.broadcast``, ``hrl_torch.broadcast``; ``"simultaneous"``: the Task-Stacks of
+the previous step, so choices at the same epoch do not see each other). An agent with no
+``U_l`` subtask (at a reset, or whose subtask just ended) counts as doing
+``Cooperation.idle``. The projected value ``V(a, s)`` a cooperative parent reads from a
+cooperative child is the child's value at the others' current actions (the text marginalizes
+over them; conditioning uses what the agent knows).
 
 **Termination schemes** (Section 6.1) at the first cooperation level:
 
@@ -46,7 +48,9 @@ from typing import Literal
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.agent import HierarchicalAgent
+from hrl_torch.agent import HierarchicalAgent, with_values
+from hrl_torch.broadcast import choose_in_order
+from hrl_torch.communication import CommunicationLevel
 from hrl_torch.executor import Choice, ExecutorConfig
 from hrl_torch.executor import as_choice as _as_choice
 from hrl_torch.exploration import Exploration
@@ -56,6 +60,7 @@ from hrl_torch.multiagent_env import agent_rows
 from hrl_torch.rng import BatchRNG
 
 Scheme = Literal["continue", "any", "all"]
+Broadcast = Literal["sequential", "simultaneous"]
 
 
 @dataclass(frozen=True)
@@ -102,11 +107,18 @@ class Cooperation:
         idle: the member of ``U_l`` an agent without a ``U_l`` subtask counts as (``None``:
             a code of its own, ``|U_l| + 1`` values per other agent).
         wait: the child a waiting agent takes under tau_all (a member of ``U_1``).
+        broadcast: how agents that choose at the same step see each other's choices.
+            ``"sequential"`` (default; the text's broadcast rule, Section 6.5: an agent's
+            choice is known to the team as soon as it is made): they choose in agent order,
+            each seeing the fresh ``U_l`` choices of the agents before it
+            (``hrl_torch.broadcast``). ``"simultaneous"`` (the behaviour before): each sees
+            the others' ``U_l`` subtasks of the previous step, a just-ended one included.
     """
 
     levels: tuple[tuple[str, ...], ...]
     idle: str | None = None
     wait: str | None = None
+    broadcast: Broadcast = "sequential"
 
 
 class CooperativeSubtask(Subtask):
@@ -161,6 +173,10 @@ class CooperativeSubtask(Subtask):
     def has_internal_rewards(self) -> bool:
         """Whether the base subtask has internal rewards."""
         return self.base.has_internal_rewards()
+
+    def has_shaping_rewards(self) -> bool:
+        """Whether the base subtask has shaping rewards (this wrapper adds none)."""
+        return self.base.has_shaping_rewards()
 
 
 @dataclass
@@ -219,6 +235,11 @@ def cooperation_levels(graph: TaskGraph, cooperation: Cooperation, n_agents: int
         levels.append(_Level(depths.pop(), members, code, none, radix, f"others_U{k + 1}"))
     if cooperation.wait is not None and (not levels or cooperation.wait not in levels[0].members):
         raise GraphError(f"Cooperation.wait {cooperation.wait!r} is not in U_1")
+    if cooperation.broadcast not in ("sequential", "simultaneous"):
+        raise ValueError(
+            f"Cooperation.broadcast must be 'sequential' or 'simultaneous', "
+            f"got {cooperation.broadcast!r}"
+        )
     return levels
 
 
@@ -285,7 +306,8 @@ class MultiAgentAgent(HierarchicalAgent):
             raise ValueError(f"scheme {scheme!r} needs a cooperation level")
         dev = graph.node_children.device
         others = [[k for k in range(n) if k != j] for j in range(n)]
-        self._others = torch.tensor(others, dtype=torch.long, device=dev).view(n, max(n - 1, 0))
+        #: ``[n, n - 1]``: the other agents of each agent, in index order
+        self.other_agents = torch.tensor(others, dtype=torch.long, device=dev).view(n, n - 1)
         for level in self.levels:
             level.code_of_node = level.code_of_node.to(dev)
         self._pending = torch.zeros(b, dtype=torch.bool, device=dev)  # tau_any interruptions
@@ -297,9 +319,24 @@ class MultiAgentAgent(HierarchicalAgent):
         if communication is not None:
             if scheme != "continue":
                 raise ValueError("communication runs with the 'continue' scheme only")
-            self._com = _CommunicationLevel(self, communication)
+            self._com = CommunicationLevel(self, communication)
             self.executor.interrupt = self._end_communication
         self.set_policy(self.policy)
+        self._init_broadcast(cooperation, communication)
+
+    def _init_broadcast(self, cooperation, communication) -> None:
+        """Set up the broadcast rule (``Cooperation.broadcast``).
+
+        Agents choose in index order within a step; a communicating level keeps its replies.
+        """
+        self._in_order = bool(self.levels) and cooperation.broadcast == "sequential"
+        #: every agent's ``U_l`` codes after this step's pops, per level ``[B, n]``
+        self.epoch_codes: list[torch.Tensor] | None = None
+        self._fixed_levels = {
+            k: True
+            for k, names in enumerate(cooperation.levels if cooperation else ())
+            if communication is not None and communication.com in names
+        }
 
     def set_policy(self, policy) -> None:
         """Act with ``policy`` (under tau_all wrapped so that finished agents wait)."""
@@ -315,14 +352,25 @@ class MultiAgentAgent(HierarchicalAgent):
         self._pending.zero_()
         if self.communication is not None:
             self._com.restart()
-        action = super().start(self._rows(obs))
+        if self._in_order:
+            self.executor.reset()
+            action, _ = choose_in_order(self, self._rows(obs), self._fixed_levels)
+        else:
+            action = super().start(self._rows(obs))
         if self.communication is not None:
             self._com.record()
         return action.view(-1, self.n_agents)
 
     def decide(self, td: TensorDict) -> tuple[torch.Tensor, TensorDict | None]:
         """Steps 1-4 on an env step ``[B]``: ``(actions [B, n], transitions of agent rows)``."""
-        action, batch = super().decide(self._rows(td))
+        rows = self._rows(td)
+        if self._in_order:  # observe as before, then choose in agent order
+            ctx = self.context(rows)  # (the choices reuse it where no code changes)
+            batch = self.executor.observe(rows, ctx, transitions=self.transitions)
+            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx)
+            self.batch = batch if batch is None else with_values(batch, ctx)
+        else:
+            action, batch = super().decide(rows)
         if self.communication is not None:
             self._com.record()
         return action.view(-1, self.n_agents), batch
@@ -370,7 +418,7 @@ class MultiAgentAgent(HierarchicalAgent):
         communicating = self.communication is not None and level is self._com.level
         if communicating:
             own = self._com.late(own)
-        others = own[:, self._others.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
+        others = own[:, self.other_agents.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
         if communicating:
             others = self._com.replies = self._com.lose(others, self.policy.rng)
         weights = level.radix ** torch.arange(n - 1, device=own.device)
@@ -460,7 +508,10 @@ class _WaitPolicy:
         if push != self.level.depth:
             return choice
         n = self.agent.n_agents
-        code = self.agent.own_codes(self.level).view(-1, n)  # after this step's pops
+        # after this step's pops, before its choices (agents choosing in order see fresh ones)
+        code = self.agent.epoch_codes[0] if self.agent._in_order else None
+        if code is None:
+            code = self.agent.own_codes(self.level).view(-1, n)
         busy = (code != self.level.none) & (code != self.wait_code)
         others_busy = (busy.sum(1, keepdim=True) - busy.long() > 0).view(-1)
         node = self.agent.graph.inst_node[inst]
@@ -469,86 +520,6 @@ class _WaitPolicy:
         choice.child = torch.where(wait, slot, choice.child)
         choice.greedy = choice.greedy | wait
         return choice
-
-
-class _CommunicationLevel:
-    """Validates a ``Communication``, builds its choice cost and records its messages."""
-
-    def __init__(self, agent: MultiAgentAgent, communication: Communication) -> None:
-        g, com, not_com = agent.graph, communication.com, communication.not_com
-        for name in (com, not_com):
-            if name not in g.index or g.node(name).is_primitive:
-                raise GraphError(f"communication: {name!r} is not a subtask of the graph")
-        cost = float(communication.cost)
-        if not (cost >= 0.0 and cost < float("inf")):
-            raise ValueError(f"communication cost must be finite and >= 0, got {cost}")
-        if not 0.0 <= communication.loss <= 1.0:
-            raise ValueError(f"communication loss must be in [0, 1], got {communication.loss}")
-        if int(communication.delay) != communication.delay or communication.delay < 0:
-            raise ValueError(f"communication delay must be an int >= 0, got {communication.delay}")
-        self.loss, self.delay = float(communication.loss), int(communication.delay)
-        self._history: torch.Tensor | None = None  # [delay + 1, B, n] own tasks, newest first
-        level = next(
-            (lv for k, lv in enumerate(agent.levels) if com in agent.cooperation.levels[k]), None
-        )
-        if level is None:
-            raise GraphError(f"communication: {com!r} is not a cooperative subtask")
-        if any(not_com in names for names in agent.cooperation.levels):
-            raise GraphError(f"communication: {not_com!r} must not be cooperative")
-        if set(g.node(com).children_names) != set(g.node(not_com).children_names):
-            raise GraphError(f"communication: {com!r} and {not_com!r} need the same children")
-        parents = [k for k, node in enumerate(g.nodes) if com in node.children_names]
-        if parents != [k for k, node in enumerate(g.nodes) if not_com in node.children_names]:
-            raise GraphError(f"communication: {com!r} and {not_com!r} need the same parents")
-        self.agent, self.level, self.depth = agent, level, level.depth
-        self.com = g.index[com]
-        choice_cost = torch.zeros(g.n_nodes, g.node_children.shape[1])
-        for k in parents:
-            choice_cost[k, g.nodes[k].children_names.index(com)] = cost
-        self.choice_cost = choice_cost.to(g.node_children.device)
-        b, n = agent.executor.stack.batch_size[0], agent.n_agents
-        dev = g.node_children.device
-        self.count = torch.zeros(b, dtype=torch.long, device=dev)
-        #: the replies of this step ``[B, n, n - 1]``: what ``com``'s choice reads
-        self.replies = torch.full((b // n, n, max(n - 1, 0)), -1, dtype=torch.long, device=dev)
-        self.messages = TensorDict(
-            {"asked": torch.zeros(b // n, n, dtype=torch.bool, device=dev), "told": self.replies},
-            batch_size=[b // n, n],
-        )
-
-    def restart(self) -> None:
-        """A new start: no replies in flight."""
-        self._history = None
-
-    def late(self, own: torch.Tensor) -> torch.Tensor:
-        """Every agent's task as the replies tell it: ``delay`` steps old (``own [B, n]``)."""
-        if not self.delay:
-            return own
-        if self._history is None:  # the start: no older replies than the current tasks
-            self._history = own.expand(self.delay + 1, *own.shape).clone()
-        self._history = torch.cat([own[None], self._history[:-1]])
-        return self._history[-1]
-
-    def lose(self, others: torch.Tensor, rng) -> torch.Tensor:
-        """``others [B, n, n - 1]`` with each reply lost (read as no task) with ``loss``."""
-        if not self.loss:
-            return others
-        lost = rng.uniform(others.shape[2]).view(others.shape) < self.loss
-        return torch.where(lost, self.level.none, others)
-
-    def record(self) -> None:
-        """After a step's pushes: the agents that invoked ``com`` asked (once per invocation)."""
-        executor, n = self.agent.executor, self.agent.n_agents
-        inst = executor.stack.inst[:, self.depth]
-        node = torch.take(self.agent.graph.inst_node, inst.clamp_min(0))
-        asked = executor.invoked[:, self.depth] & (node == self.com)
-        self.count += asked
-        members = torch.where(self.replies >= len(self.level.members), -1, self.replies)
-        asked = asked.view(-1, n)
-        self.messages = TensorDict(
-            {"asked": asked, "told": torch.where(asked[..., None], members, -1)},
-            batch_size=asked.shape,
-        )
 
 
 def _child_slot(graph: TaskGraph, node: torch.Tensor, name: str) -> torch.Tensor:

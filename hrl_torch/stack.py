@@ -32,8 +32,9 @@ class TaskStack:
     - ``greedy`` (the child and every ancestor's choice were greedy), ``own_greedy`` (True
       at and above the top);
     - ``inv_steps``: primitive steps of the level's own invocation (the guard);
-    - ``vis_state``, ``vis_steps``, ``vis_time`` ``[B, D, L]``: the last ``L`` states visited
-      during the child (all-states updating);
+    - ``vis_state``, ``vis_steps``, ``vis_time``, ``vis_internal`` ``[B, D, L]``: the last
+      ``L`` states visited during the child, with the steps, time and discounted shaping reward
+      accumulated up to each (all-states updating);
     - ``start_features`` ``[B, D, F]``: the node's features where the child started;
     - ``score_index``, ``score_value`` ``[B, D, K]``: the likelihood-ratio term of the child's
       choice, as a sparse increment into a policy-gradient learner's parameters (PG nodes).
@@ -59,6 +60,7 @@ class TaskStack:
     vis_state: torch.Tensor
     vis_steps: torch.Tensor
     vis_time: torch.Tensor
+    vis_internal: torch.Tensor
     start_features: torch.Tensor
     score_index: torch.Tensor
     score_value: torch.Tensor
@@ -103,6 +105,7 @@ class TaskStack:
             vis_state=zeros(d, visits, dtype=long),
             vis_steps=zeros(d, visits, dtype=long),
             vis_time=zeros(d, visits),
+            vis_internal=zeros(d, visits),
             start_features=zeros(d, max(graph.max_features, 1)),
             score_index=torch.full((b, d, k), -1, dtype=long, device=dev),
             score_value=zeros(d, k),

@@ -170,6 +170,10 @@ class Subtask(nn.Module):
             return None
         return fn(obs, action, next_obs, memory) if self.memory_size else fn(obs, action, next_obs)
 
+    def has_shaping_rewards(self) -> bool:
+        """Whether this subtask defines per-step shaping rewards."""
+        return overrides(self, "shaping_reward")
+
     def has_internal_rewards(self) -> bool:
         """Whether this subtask defines pseudo or shaping rewards (so internal != external)."""
         cls = type(self)

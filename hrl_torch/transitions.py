@@ -88,6 +88,13 @@ LEVEL_KEYS: tuple[Key, ...] = (
     Key("visited_state", _BDL, "long", "visited", "states of node during the child"),
     Key("visited_steps", _BDL, "long", "visited", "their step counts since the start"),
     Key("visited_time", _BDL, "float", "visited", "their times since the start"),
+    Key(
+        "visited_internal",
+        _BDL,
+        "float",
+        "visited",
+        "the node's discounted shaping reward before each, to the child's start",
+    ),
     Key("visited_valid", _BDL, "bool", "visited", "the visit slot holds a visit"),
     Key("features", ("B", "D", "F"), "float", "features", "node's features at the start"),
     Key("next_features", ("B", "D", "F"), "float", "features", "node's features at s'"),
@@ -189,6 +196,7 @@ class TransitionWriter:
             ("vis_state", state),
             ("vis_steps", f["steps"]),
             ("vis_time", f["time"]),
+            ("vis_internal", f["internal"]),
         ):
             f[key] = torch.where(here, value[..., None].to(f[key].dtype), f[key])
 
@@ -239,6 +247,7 @@ class TransitionWriter:
                 visited_state=f["vis_state"],
                 visited_steps=f["vis_steps"],
                 visited_time=f["vis_time"],
+                visited_internal=f["vis_internal"],
                 visited_valid=self.visit_slots
                 < f["steps"].clamp_max(ex.config.record_visited)[..., None],
             )

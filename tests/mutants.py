@@ -735,7 +735,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "com-counted-while-running",
-        "hrl_torch/multiagent.py",
+        "hrl_torch/communication.py",
         "asked = executor.invoked[:, self.depth] & (node == self.com)",
         "asked = (inst >= 0) & (node == self.com)",
         "every step under Com counts as a communication, not each invocation",

@@ -39,12 +39,15 @@ class MaxQLearner(TabularLearner):
         n_learners: population size ``P``.
         alpha: step size (number or schedule).
         gamma: discount factor.
-        all_states: also update ``C`` for every state visited during the child (needs the
-            executor's ``record_visited``).
+        all_states: also update ``C`` (and ``C~``) for every state visited during the child
+            (Algorithm 4, lines 15-17 and 25-27; needs the executor's ``record_visited``).
+            Refused for nodes whose internal rewards read their invocation's memory.
         per_instance: tables per Task-Stack context rather than per subtask.
         init: initial completion values (see docs/design.md on initialisation and loops).
         init_internal: initial internal completions ``C~`` (default: ``init``), e.g.
             pessimistic ones for subtasks whose internal rewards are step costs.
+        init_nodes: initial completions (``C`` and ``C~``) of the named subtasks instead,
+            e.g. optimistic ones at a cooperative root so that every joint choice is tried.
     """
 
     uses = frozenset()
@@ -59,11 +62,18 @@ class MaxQLearner(TabularLearner):
         per_instance: bool = False,
         init: float = 0.0,
         init_internal: float | None = None,
+        init_nodes: dict[str, float] | None = None,
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance)
         self.all_states = all_states
-        if all_states and graph.shaping_nodes:
-            raise GraphError("all-states updating with per-step shaping rewards is not supported")
+        remembering = [
+            graph.nodes[k].name for k in graph.internal_nodes if graph.nodes[k].memory_size
+        ]
+        if all_states and remembering:
+            raise GraphError(
+                f"all-states updating: the internal rewards of {remembering} depend on where "
+                "their invocation started, which a visited state does not hold"
+            )
         self.internal = bool(graph.internal_nodes)
         self.C = self.completion_bank(init)
         c_int_init = init if init_internal is None else init_internal
@@ -76,6 +86,11 @@ class MaxQLearner(TabularLearner):
             self.share_store(C=self.C, V=self.V)
         internal = {"C_int": self.C_int} if self.internal else {}
         self.attach_heads(C=self.C, **internal, V=self.V)
+        for name, value in (init_nodes or {}).items():  # initial completions of some nodes
+            if name not in graph.index or graph.node(name).is_primitive:
+                raise GraphError(f"init_nodes: {name!r} is not a subtask of the graph")
+            for key in ("C", "C_int") if self.internal else ("C",):
+                self.heads[name][key].fill_(float(value))
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:
@@ -156,7 +171,16 @@ class MaxQLearner(TabularLearner):
             self._update_visited(batch, table, terminal, valid, v_next, v_next_int, alpha)
 
     def _update_visited(self, batch, table, terminal, valid, v_next, v_next_int, alpha) -> None:
-        """All-states updating: each state ``s_k`` the child passed gets the target from ``s_k``."""
+        """All-states updating (Algorithm 4, lines 15-17 and 25-27).
+
+        Every state ``s_k`` the child passed, ``t_k`` into it, gets the target from ``s_k``::
+
+            C(i, s_k, a)  <- (1-alpha) C  + alpha g^(N - t_k) [C(i, s', a*) + V(a*, s')]
+            C~(i, s_k, a) <- (1-alpha) C~ + alpha [R~_k + g^(N - t_k) (R~_i(s') or V~(i, s'))]
+
+        with ``R~_k`` the shaping of ``i`` from ``s_k`` on, discounted to ``s_k``: the child's
+        whole shaping less what was collected before ``s_k``, over ``gamma^t_k``.
+        """
         level, learner = batch[LEVEL], batch["learner"][:, None]
         late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
         remaining = level["duration"][..., None] - level["visited_time"]
@@ -165,9 +189,13 @@ class MaxQLearner(TabularLearner):
         internal = factor * torch.where(
             terminal[..., None], level["pseudo_reward"][..., None], v_next_int[..., None]
         )
+        if "visited_internal" in level.keys():  # the shaping from s_k on
+            shaping = level["internal_reward"][..., None] - level["visited_internal"]
+            internal = internal + shaping / discount(self.gamma, level["visited_time"])
         vidx = self.C.index(
             learner[..., None], table[..., None], level["visited_state"], level["child"][..., None]
         )
         self.C.update(vidx.reshape(-1), external.reshape(-1), alpha, late.reshape(-1))
-        if self.internal:
+        if self.internal:  # (C~ sits at a fixed distance from C, as in ``update``)
+            vidx = vidx + (self.C_int.base - self.C.base)
             self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))

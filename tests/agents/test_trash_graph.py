@@ -155,3 +155,14 @@ def test_random_rollouts_of_the_communication_graph():
         ("CollectT1", "Put"),
     ]:
         assert pair in ended, pair
+
+
+def test_the_cooperative_algorithm_starts_its_joint_root_optimistic_and_the_rest_pessimistic():
+    from hrl_torch import registry
+
+    spec = registry.get("trash").algos["cooperative"]
+    learner = spec.make_learner(spec.make_graph(), 2)
+    assert bool((learner.heads["Root"]["C"] == 0).all())  # every joint choice gets tried
+    assert bool((learner.heads["CollectT1"]["C"] == -10).all())
+    selfish = registry.get("trash").algos["selfish"]
+    assert bool((selfish.make_learner(selfish.make_graph(), 2).heads["Root"]["C"] == -10).all())

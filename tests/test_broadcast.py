@@ -1,0 +1,87 @@
+"""Sequential broadcast within a decision epoch (``Cooperation.broadcast``, Section 6.5's rule).
+
+On the hand-made two-agent clock of ``tests/test_multiagent.py`` (TaskA lasts 2 steps, TaskB 3;
+agent 0 always takes TaskA, agent 1 TaskB): the code each agent saw when its root child started
+is the root's start state (the root has one state of its own, so its abstract state is the
+others' ``U_1`` code: 0 TaskA, 1 TaskB, 2 Wait, 3 none).
+"""
+
+import pytest
+import torch
+
+from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.learners import MaxQLearner
+from hrl_torch.multiagent import Cooperation, MultiAgentAgent, agent_rng, cooperative_graph
+from tests.test_multiagent import AgentIndexPolicy, Clock, graph
+
+NONE, TASK_A, TASK_B = 3, 0, 1
+
+
+def seen_codes(broadcast: str, steps: int = 7) -> list[list[int]]:
+    """Per step, the code each agent saw when its current root child started."""
+    cooperation = Cooperation((("Root",),), wait="Wait", broadcast=broadcast)
+    g = cooperative_graph(graph(), cooperation, 2)
+    env = Clock([0], 1)
+    agent = MultiAgentAgent(
+        g,
+        MaxQLearner(g, 2),
+        EpsilonGreedy(0.0),
+        agent_rng([0], 1, 2, "x"),
+        1,
+        2,
+        cooperation=cooperation,
+        learn=False,
+    )
+    agent.set_policy(AgentIndexPolicy())
+    action = agent.start(env.reset())
+    seen = [agent.executor.stack.start_state[:, 0].tolist()]
+    for _ in range(steps - 1):
+        action, _ = agent.decide(env.step(action))
+        seen.append(agent.executor.stack.start_state[:, 0].tolist())
+    return seen
+
+
+def test_a_later_agent_sees_the_fresh_choice_of_an_earlier_one():
+    seen = seen_codes("sequential")
+    # t=0 both choose: agent 0 sees none, agent 1 sees agent 0's TaskA just chosen
+    assert seen[0] == [NONE, TASK_A]
+    # t=2 agent 0 alone chooses again, seeing TaskB running; t=3 agent 1 sees TaskA running
+    assert seen[2] == [TASK_B, TASK_A] and seen[3] == [TASK_B, TASK_A]
+    # t=6 both tasks end together: agent 0 sees agent 1 without a task, agent 1 the fresh TaskA
+    assert seen[6] == [NONE, TASK_A]
+
+
+def test_simultaneous_broadcast_keeps_the_previous_steps_tasks():
+    seen = seen_codes("simultaneous")
+    assert seen[0] == [NONE, NONE]  # neither sees the other's choice at the start
+    assert seen[6] == [TASK_B, TASK_A]  # each sees the other's task that just ended
+
+
+def test_an_unknown_broadcast_is_a_clear_error():
+    with pytest.raises(ValueError, match="broadcast"):
+        seen_codes("instant")
+
+
+@pytest.mark.parametrize("broadcast", ["sequential", "simultaneous"])
+def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
+    # the transition values of a step where both choose are the values at the codes seen
+    # (simultaneous: agent 0 read agent 1's just-ended TaskB instead, another value)
+    cooperation = Cooperation((("Root",),), wait="Wait", broadcast=broadcast)
+    g = cooperative_graph(graph(), cooperation, 2)
+    learner = MaxQLearner(g, 2)
+    learner.C.store.copy_(torch.randn_like(learner.C.store))  # codes give different values
+    env = Clock([0], 1)
+    agent = MultiAgentAgent(
+        g, learner, EpsilonGreedy(0.0), agent_rng([0], 1, 2, "x"), 1, 2, cooperation=cooperation
+    )
+    agent.set_policy(AgentIndexPolicy())
+    action = agent.start(env.reset())
+    for _ in range(6):  # t=6: both choose
+        action, batch = agent.decide(env.step(action))
+    obs = agent.ctx.obs.clone(False)  # s' with the codes the agents saw when choosing
+    obs.set("others_U1", torch.tensor([NONE, TASK_A]))
+    ctx = g.context(obs, agent.rows)
+    learner.evaluate(ctx)
+    root = 0
+    same = torch.equal(batch["values"]["V"][:, root], ctx.values["V"][:, root])
+    assert same == (broadcast == "sequential")
