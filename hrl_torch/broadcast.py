@@ -61,7 +61,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     (each row's codes as it saw them when choosing).
     """
     ex, n = agent.executor, agent.n_agents
-    acting, before = ex.acting, ex.fields()
+    acting, before = ex.acting, ex.stack.tensors()
     post = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     agent.epoch_codes = post
     used = [_codes(agent, k, post[k], post[k], rows, fixed) for k in range(len(agent.levels))]
@@ -77,7 +77,8 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
             redo |= invoked[:, level.depth + 1] & (codes[k] != used[k])
         if not bool(redo.any()):
             break
-        ex.rewind(_restored(ex.fields(), before, redo), redo if acting is None else redo & acting)
+        now = ex.stack.tensors()
+        ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = agent.context(_with_codes(agent, rows, codes))
         action = ex.act(ctx, SameDraws(agent.policy), agent.clock)
         invoked = torch.where(redo[:, None], ex.invoked, invoked)

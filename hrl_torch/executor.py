@@ -175,14 +175,11 @@ class HierarchicalExecutor:
         """The agent rows acting at the current step ``[B]`` (``None``: every row acts)."""
         return self._acting
 
-    def fields(self) -> dict[str, torch.Tensor]:
-        """The stacks' fields now (``rewind`` puts rows back to them)."""
-        return dict(self._fields)
-
     def rewind(self, fields: dict[str, torch.Tensor], acting: torch.Tensor) -> None:
         """Put the stacks back to ``fields``; only the ``acting`` rows act at the next ``act``.
 
-        (Agents that choose again in one step: ``hrl_torch.broadcast.choose_in_order``.)
+        ``fields``: ``stack.tensors()`` of an earlier moment (agents that choose again in one
+        step: ``hrl_torch.broadcast.choose_in_order``).
         """
         self._replace(fields)
         self._acting = acting
