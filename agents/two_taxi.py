@@ -77,6 +77,7 @@ pairs or store values we cannot infer, so only the selfish count is reproduced c
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 
 import torch
 from tensordict import TensorDict
@@ -142,8 +143,14 @@ def _loc_status(obs: TensorDict) -> torch.Tensor:
     return obs["taxi_loc"] * N_STATUS + obs["status"]
 
 
-def _get(station: int) -> Subtask:
-    """Get_s: drive to station ``s`` and pick its passenger up (Pickup only at ``s``)."""
+def _get(station: int, text: bool = False) -> Subtask:
+    """Get_s: drive to station ``s`` and pick its passenger up (Pickup only at ``s``).
+
+    ``text``: the text's rule ("the first taxi picks up the passenger and the other one returns
+    empty", Section 6.6): Get_s starts only where ``s`` has a passenger and ends with a pickup
+    or at ``s`` with nobody there; a taxi whose passenger another took drives on to ``s``.
+    Otherwise (the race variant) it ends as soon as ``s`` has no passenger.
+    """
     name = STATION_NAMES[station]
     waiting = f"waiting_{name}"
     at = int(STATION_LOC[station])
@@ -152,12 +159,19 @@ def _get(station: int) -> Subtask:
         there = obs["taxi_loc"] == at
         return torch.stack([~there, there], dim=1)
 
+    def ended(obs: TensorDict) -> torch.Tensor:
+        nobody = obs[waiting] == 0
+        if text:  # only at the station
+            nobody = nobody & (obs["taxi_loc"] == at)
+        return (obs["status"] != EMPTY) | nobody
+
     return Subtask(
         f"Get{name}",
         [NAVIGATE[station], "Pickup"],
         n_states=GET_STATES,
         abstract=_loc_stations,
-        terminated=lambda o: (o["status"] != EMPTY) | (o[waiting] == 0),
+        terminated=ended,
+        initiable=(lambda o: o[waiting] != 0) if text else None,
         child_mask=mask,
     )
 
@@ -171,8 +185,8 @@ def _put_mask(obs: TensorDict) -> torch.Tensor:
     return torch.cat([nav & ~there[:, None], there[:, None]], dim=1)
 
 
-def _below_u1() -> list[Subtask | Primitive]:
-    """The U_1 subtasks (but Wait, a primitive) and everything below them."""
+def _below_u1(text: bool = False) -> list[Subtask | Primitive]:
+    """The U_1 subtasks (but Wait, a primitive) and everything below them (``_get``'s text)."""
     put = Subtask(
         "Put",
         [*NAVIGATE, "Putdown"],
@@ -182,7 +196,7 @@ def _below_u1() -> list[Subtask | Primitive]:
         child_mask=_put_mask,
     )
     return [
-        *(_get(s) for s in range(N_STATIONS)),
+        *(_get(s, text) for s in range(N_STATIONS)),
         put,
         *(StepCostNavigate(t) for t in range(N_STATIONS)),
         Primitive("South", 0),
@@ -195,19 +209,22 @@ def _below_u1() -> list[Subtask | Primitive]:
     ]
 
 
-def two_taxi_hierarchy() -> TaskGraph:
-    """The task graph of Figure 6.10 for one taxi, without the communication level."""
+def two_taxi_hierarchy(text: bool = False) -> TaskGraph:
+    """The task graph of Figure 6.10 for one taxi, without the communication level.
+
+    ``text``: Get_s ends only at its station (``_get``).
+    """
     root = Subtask("Root", U1, n_states=ROOT_STATES, abstract=_root_state)
-    return TaskGraph("Root", [root, *_below_u1()], n_actions=N_ACTIONS)
+    return TaskGraph("Root", [root, *_below_u1(text)], n_actions=N_ACTIONS)
 
 
-def two_taxi_com_hierarchy() -> TaskGraph:
+def two_taxi_com_hierarchy(text: bool = False) -> TaskGraph:
     """Figure 6.10 with the communication level: Root -> Com, NotCom -> U_1 (shared)."""
     root = Subtask("Root", ["Com", "NotCom"], n_states=ROOT_STATES, abstract=_root_state)
     levels = [
         Subtask(name, U1, n_states=ROOT_STATES, abstract=_root_state) for name in ("Com", "NotCom")
     ]
-    return TaskGraph("Root", [root, *levels, *_below_u1()], n_actions=N_ACTIONS)
+    return TaskGraph("Root", [root, *levels, *_below_u1(text)], n_actions=N_ACTIONS)
 
 
 def value_counts(graph: TaskGraph, joint: Mapping[str, int] | None = None) -> dict[str, int]:
@@ -289,6 +306,26 @@ def make_env(
     )
 
 
+def make_text_env(
+    seeds,
+    envs_per_learner: int,
+    backend: str = "torch",
+    n_agents: int = 2,
+    mean_interarrival: float = MEAN_INTERARRIVAL,
+    arrivals: str = "grid",
+):
+    """The text's task: every taxi learns from the one team reward (deliveries, waiting)."""
+    return TwoTaxiEnv(
+        seeds,
+        envs_per_learner,
+        n_agents,
+        mean_interarrival,
+        max_episode_steps=None,
+        own_rewards=False,
+        arrivals=arrivals,
+    )
+
+
 def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
     """MAXQ-Q; the U_1 parents' completions start at ``SERVE_INIT`` / ``WAIT_INIT``."""
     learner = MaxQLearner(
@@ -330,48 +367,76 @@ def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
     )
 
 
-def com_graph() -> TaskGraph:
+def com_graph(text: bool = False) -> TaskGraph:
     """The COM graph with ``Com``'s completions joint over the other taxi's U_1 task."""
-    return cooperative_graph(two_taxi_com_hierarchy(), COM_COOPERATION, 2)
+    return cooperative_graph(two_taxi_com_hierarchy(text), COM_COOPERATION, 2)
 
 
-def _algos() -> dict[str, AlgoSpec]:
+def cooperative_two_taxi_graph(text: bool = False) -> TaskGraph:
+    """Cooperative HRL's graph: Root's completions joint over the other taxi's U_1 task."""
+    return cooperative_graph(two_taxi_hierarchy(text), COOPERATION, 2)
+
+
+def _algos(text: bool = False, **env_options) -> dict[str, AlgoSpec]:
+    """The learners of Section 6.6 (``text``: on the graphs whose Get ends at its station)."""
     spec = algo_family(
         make_learner=_maxq,
         make_exploration=_epsilon,
         train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
         envs_per_learner=16,
     )
-
+    flat = partial(two_taxi_hierarchy, text)
+    com = partial(com_graph, text)
     algos = {
-        "selfish": spec(two_taxi_hierarchy, "selfish multi-agent HRL: each taxi learns alone"),
+        "selfish": spec(flat, "selfish multi-agent HRL: each taxi learns alone", **env_options),
         "cooperative": spec(
-            lambda: cooperative_graph(two_taxi_hierarchy(), COOPERATION, 2),
+            partial(cooperative_two_taxi_graph, text),
             "Cooperative HRL: Root's completions know the other taxi's U_1 task",
             MultiAgentConfig(COOPERATION),
+            **env_options,
         ),
-        "single": spec(two_taxi_hierarchy, "single-agent HRL: one taxi", n_agents=1),
+        "single": spec(flat, "single-agent HRL: one taxi", n_agents=1, **env_options),
     }
     for cost in COM_COSTS:
         algos[f"com-{cost}"] = spec(
-            com_graph,
+            com,
             f"COM-Cooperative HRL, ComCost {cost}: Root chooses Com (asks) or NotCom",
             MultiAgentConfig(COM_COOPERATION, communication=Communication(cost=float(cost))),
+            **env_options,
         )
     for loss in (50, 100):  # beyond the text: replies lost with probability loss %
         algos[f"com-0-loss{loss}"] = spec(
-            com_graph,
+            com,
             f"COM-Cooperative HRL, ComCost 0, {loss}% of the replies lost",
             MultiAgentConfig(COM_COOPERATION, communication=Communication(loss=loss / 100)),
+            **env_options,
         )
     return algos
 
 
+#: the first build: a Get ends when its passenger is gone, arrivals over the grid, own rewards
 DOMAIN = DomainSpec(
     name="two-taxi",
     description="two taxis serving arriving passengers (Figure 6.10), discrete time, continuing",
     make_env=make_env,
     algos=_algos(),
+    make_evaluator=_evaluator,
+)
+#: the text's task: Get ends at its station (the loser returns empty), one team reward
+DOMAIN_TEXT = DomainSpec(
+    name="two-taxi-text",
+    description="two taxis as Section 6.6 builds them: a race's loser returns empty, team "
+    "reward, one arrival process over the grid",
+    make_env=make_text_env,
+    algos=_algos(text=True),
+    make_evaluator=_evaluator,
+)
+#: the text's task, footnote 4 read per station: each station its own arrival process
+DOMAIN_TEXT_STATION = DomainSpec(
+    name="two-taxi-text-station",
+    description="two-taxi-text with an arrival process per station (footnote 4 per station)",
+    make_env=make_text_env,
+    algos=_algos(text=True, arrivals="station"),
     make_evaluator=_evaluator,
 )
 
