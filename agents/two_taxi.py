@@ -84,19 +84,24 @@ from tensordict import TensorDict
 
 from agents.taxi import Navigate
 from envs.two_taxi import (
+    EAST,
     EMPTY,
     MEAN_INTERARRIVAL,
+    MOVES,
     N_ACTIONS,
     N_LOCATIONS,
     N_STATIONS,
     N_STATIONS_STATES,
     N_STATUS,
+    NORTH,
     PICKUP,
     PUTDOWN,
+    SOUTH,
     STATION_LOC,
     STATION_NAMES,
     THROUGHPUT_WINDOW,
     WAIT,
+    WEST,
     TwoTaxiEnv,
 )
 from hrl_torch.continuing import ThroughputEvaluator
@@ -128,6 +133,33 @@ class StepCostNavigate(Navigate):
     def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
         """-1 per move."""
         return -torch.ones(action.shape[0], device=action.device)
+
+
+class TeamNavigate(StepCostNavigate):
+    """Navigate(t) of the text's task (team reward): -``cost`` per move, no moves into walls.
+
+    With one team reward a move's reward holds the other taxi's deliveries (+20 now and
+    then), so the moves' values ``V(North)`` ... (one state each, leaf irrelevance) jump by
+    ``alpha * 20 = 4`` whenever the other taxi delivers during one of them. With -1 per move a
+    greedy taxi with frozen tables then bumped into a wall forever when that move's value was
+    above 1 (seen: ``V(West) = 3.8``, the taxi stuck at (1, 2); greedy throughput 0 in 3 of 5
+    selfish seeds at 20,000-80,000 steps). Moves that stay put are masked (no self-loop) and
+    each move costs ``cost`` inside Navigate (a two-move cycle needs both values above it).
+    """
+
+    def __init__(self, target: int, cost: float) -> None:
+        super().__init__(target)
+        self.cost = float(cost)
+
+    def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
+        """-``cost`` per move."""
+        return torch.full((action.shape[0],), -self.cost, device=action.device)
+
+    def child_mask(self, obs: TensorDict) -> torch.Tensor:
+        """``[B, 4]``: North, South, East, West where they leave the square."""
+        loc = obs["taxi_loc"]
+        moves = MOVES.to(loc.device)[loc][:, [NORTH, SOUTH, EAST, WEST]]
+        return moves != loc[:, None]
 
 
 def _root_state(obs: TensorDict) -> torch.Tensor:
@@ -198,7 +230,10 @@ def _below_u1(text: bool = False) -> list[Subtask | Primitive]:
     return [
         *(_get(s, text) for s in range(N_STATIONS)),
         put,
-        *(StepCostNavigate(t) for t in range(N_STATIONS)),
+        *(
+            TeamNavigate(t, TEAM_NAV_COST) if text else StepCostNavigate(t)
+            for t in range(N_STATIONS)
+        ),
         Primitive("South", 0),
         Primitive("North", 1),
         Primitive("East", 2),
@@ -271,6 +306,9 @@ GAMMA = 0.95  # per step
 INIT = 0.0  # external completions below the U_1 parents
 #: pessimistic internal completions inside Navigate (the longest route's discounted cost)
 INIT_INTERNAL = -10.0
+#: the text's task: Navigate's internal cost per move (``TeamNavigate``); its internal
+#: completions start at ``INIT_INTERNAL * TEAM_NAV_COST``
+TEAM_NAV_COST = 5.0
 #: Initial completions at the U_1 parents (Root, Com, NotCom): optimistic for the tasks that
 #: serve passengers, pessimistic for Wait. With 0 for all, a greedy taxi waited forever at root
 #: states it had not met in training (frozen tables; the root's state holds every station and,
@@ -326,10 +364,10 @@ def make_text_env(
     )
 
 
-def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
+def _maxq(graph: TaskGraph, sets: int, nav_cost: float = 1.0) -> MaxQLearner:
     """MAXQ-Q; the U_1 parents' completions start at ``SERVE_INIT`` / ``WAIT_INIT``."""
     learner = MaxQLearner(
-        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL
+        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL * nav_cost
     )
     with torch.no_grad():
         for parent in ("Root", "Com", "NotCom"):
@@ -380,7 +418,7 @@ def cooperative_two_taxi_graph(text: bool = False) -> TaskGraph:
 def _algos(text: bool = False, **env_options) -> dict[str, AlgoSpec]:
     """The learners of Section 6.6 (``text``: on the graphs whose Get ends at its station)."""
     spec = algo_family(
-        make_learner=_maxq,
+        make_learner=partial(_maxq, nav_cost=TEAM_NAV_COST) if text else _maxq,
         make_exploration=_epsilon,
         train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
         envs_per_learner=16,

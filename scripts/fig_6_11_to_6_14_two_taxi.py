@@ -13,6 +13,7 @@ its passenger is taken, each taxi its own share of the reward).
   rates 5, 10 and 20 (the text's rate: mean steps between arrivals, ``envs.two_taxi``);
 - Figure 6.14: COM-Cooperative HRL with ComCost 0, 1, 5 and 10 against selfish HRL:
   throughput, waiting time and the share of decisions made communicating;
+- ``teams``: 6.11 and 6.12 without single-agent HRL;
 - ``rules``: the room the task leaves for coordination: hand-written dispatching rules
   (``agents.two_taxi_rules``: racing for the nearest passenger, with the text's Get or the
   first build's, against coordinated choices) at rates 5, 10 and 20 with the domain's
@@ -26,7 +27,7 @@ training values and the training curves' means over the whole run (a gap that cl
 shows there), mean ± sd over seeds.
 
     python scripts/fig_6_11_to_6_14_two_taxi.py [--domain two-taxi-text] [--seeds 5]
-        [--steps 200000] [--only fig_6_11 ...] [--reuse]
+        [--steps 200000] [--eval-every 20000] [--only fig_6_11 ...] [--reuse]
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ RATES = (5.0, MEAN_INTERARRIVAL, 20.0)
 FIGURES = {
     "fig_6_11": (BASE, [THROUGHPUT]),
     "fig_6_12": (BASE, [WAIT]),
+    # 6.11 and 6.12 without the single taxi (for the per-station reading)
+    "teams": (BASE[:3], [THROUGHPUT, WAIT]),
     "fig_6_13": (
         [
             (a, rate)
@@ -85,12 +88,19 @@ def run(algo: str, options: dict, args, out: Path, cache: dict) -> Path:
         "options": options,
         "seeds": list(range(args.seeds)),
         "steps": args.steps,
+        "eval_every": args.eval_every,
     }
     if args.reuse:
         for path in sorted(out.glob("**/variant.json")):
             if json.loads(path.read_text()) == variant and (path.parent / "summary.json").exists():
                 return path.parent
-    opts = RunOptions(seeds=variant["seeds"], steps=args.steps, out=str(out), progress=False)
+    opts = RunOptions(
+        seeds=variant["seeds"],
+        steps=args.steps,
+        eval_every=args.eval_every,
+        out=str(out),
+        progress=False,
+    )
     run_dir = run_variant(args.domain, algo, options, opts, cache)
     (run_dir / "variant.json").write_text(json.dumps(variant) + "\n")
     return run_dir
@@ -186,6 +196,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=200_000)
     parser.add_argument("--out", default="runs")
+    parser.add_argument(
+        "--eval-every", type=int, default=None, help="greedy evaluations (default: 20,000)"
+    )
     parser.add_argument("--reuse", action="store_true", help="read finished runs of a variant")
     names = [*FIGURES, "rules"]
     parser.add_argument("--only", nargs="*", default=names, choices=names)

@@ -126,3 +126,18 @@ def test_text_domains_are_registered_with_team_rewards_and_their_arrivals():
     old = registry.get("two-taxi").make_env([0], 2, "torch")
     assert old.own_rewards and old.arrivals == "grid"
     assert WAIT == 6
+
+
+def test_text_navigation_masks_moves_into_walls_and_costs_more_per_move():
+    graph = two_taxi_hierarchy(text=True)
+    ctx = graph.context(obs(taxi_loc=7))  # (1, 2): a wall to the west
+    nav = graph.index["Navigate_R"]
+    assert ctx.available[0, nav, :4].tolist() == [True, True, True, False]  # N, S, E, not W
+    corner = graph.context(obs(taxi_loc=0)).available[0, nav, :4]  # R itself ends Navigate_R
+    assert corner.tolist() == [False, True, True, False]
+    node = graph.node("Navigate_B")
+    action = torch.tensor([0])
+    assert node.shaping_reward(obs(), action, obs()).item() == -5.0
+    old = two_taxi_hierarchy().node("Navigate_B")  # the first build: -1, every move allowed
+    assert old.shaping_reward(obs(), action, obs()).item() == -1.0
+    assert two_taxi_hierarchy().context(obs(taxi_loc=7)).available[0, nav, :4].all()
