@@ -21,11 +21,31 @@ communication level)::
     Root ─┬─ Com ────┬─ GetB, GetG, GetR, GetY, Wait, Put   (the same subtasks under both)
           └─ NotCom ─┘
 
-Termination: ``Get_s`` ends when the taxi carries a passenger or station ``s`` has none (another
-taxi took it); ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``; ``Root`` never (the
-task is continuing). ``Com`` / ``NotCom`` stand for one decision and have no termination of
-their own: the COM agent (``hrl_torch.multiagent.Communication``) ends them when their ``U_1``
-child ends, so every ``U_1`` decision is preceded by a communication decision.
+Two tasks are registered, with the same learners (``hrl-torch list``):
+
+- ``two-taxi-text`` and ``two-taxi-text-station``, the task as Section 6.6 describes it:
+  ``Get_s`` starts only where ``s`` has a passenger and ends with a pickup or *at* ``s`` with
+  nobody there: "the first taxi picks up the passenger and the other one returns empty" (the
+  loser of a race drives on to the station; a passenger who arrived meanwhile is its own).
+  Every taxi learns from the one team reward (+20 per delivery, -1 per waiting passenger and
+  step, -10 per illegal action: ``make_text_env``). Footnote 4's arrival rate is read over the
+  grid (``two-taxi-text``: one arrival every ``rate`` steps on average) or per station
+  (``two-taxi-text-station``: every station its own). ``Navigate(t)`` is ``TeamNavigate``:
+  -5 per move inside it and no moves into walls, because the team reward's noise (the other
+  taxi's deliveries) in the moves' values made greedy taxis bump into walls forever;
+- ``two-taxi``, the first build: ``Get_s`` ends as soon as station ``s`` has no passenger
+  (another taxi took it), so a lost race costs nothing after the pickup; each taxi learns from
+  its own share of the reward (its deliveries and illegal actions, half the waiting cost).
+
+``agents.two_taxi_rules`` holds hand-written dispatching rules on the same tasks (racing for the
+nearest passenger, or coordinated choices): they measure how much room the task leaves for
+coordination.
+
+Termination: ``Get_s`` as above; ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``;
+``Root`` never (the task is continuing). ``Com`` / ``NotCom`` stand for one decision and have
+no termination of their own: the COM agent (``hrl_torch.multiagent.Communication``) ends them
+when their ``U_1`` child ends, so every ``U_1`` decision is preceded by a communication
+decision.
 
 State abstractions: each taxi stores only its own variables and the stations' statuses
 (``4**4 = 256``):
