@@ -11,7 +11,9 @@ waits. The rules differ in how a free taxi picks its station and when its ``Get`
   first build's ``Get``, ``two-taxi``);
 - ``coordinated``: a waiting passenger that no other taxi is already driving to (one
   ``Tell`` per choice, as Cooperative HRL's free communication); taxis choosing at the same
-  step are matched closest (taxi, station) pair first.
+  step are matched closest (taxi, station) pair first;
+- ``coordinated-unseen``: the same, but taxis choosing at the same step do not see each
+  other's choice (each takes its nearest station among those not already claimed).
 
 ``race`` is what a selfish taxi can do at best without knowing the other's task;
 ``coordinated`` what knowing it buys with the simplest rule. Their difference measures the
@@ -35,6 +37,8 @@ from envs.two_taxi import (
 )
 
 RULES = ("race", "race-taken", "coordinated")
+#: beyond the rules table: coordinated choices that do not see choices of the same step
+RULES_EXTRA = ("coordinated-unseen",)
 NONE = -1  # no task
 
 
@@ -67,8 +71,8 @@ class RulePolicy:
     """
 
     def __init__(self, env: TwoTaxiEnv, rule: str) -> None:
-        if rule not in RULES:
-            raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
+        if rule not in RULES + RULES_EXTRA:
+            raise ValueError(f"rule must be one of {RULES + RULES_EXTRA}, got {rule!r}")
         self.env, self.rule = env, rule
         self.task = torch.full((env.batch_size, env.n_agents), NONE, dtype=torch.long)
         self._dist_to_station = DIST[:, STATION_LOC]  # [25, 4]
@@ -90,13 +94,25 @@ class RulePolicy:
         dist = self._dist_to_station[loc]  # [B, n, 4]
         if self.rule == "coordinated":
             choice = self._match(dist, waiting, task, choosing)
-        else:  # every taxi its nearest waiting passenger
-            dist = torch.where(waiting[:, None, :], dist, 10**6)
-            choice = torch.where(waiting.any(1)[:, None], dist.argmin(2), NONE)
+        else:  # every taxi its nearest waiting passenger (not claimed, if coordinated-unseen)
+            allowed = waiting[:, None, :].expand_as(dist)
+            if self.rule == "coordinated-unseen":
+                allowed = allowed & ~self._claimed(task)[:, None, :]
+            dist = torch.where(allowed, dist, 10**6)
+            choice = torch.where(allowed.any(2), dist.argmin(2), NONE)
         self.task = task = torch.where(choosing, choice, task)
         goal = torch.where(loaded, STATION_LOC[env.status.clamp_max(3)], STATION_LOC[task])
         act = torch.where(loc == goal, torch.where(loaded, PUTDOWN, PICKUP), FIRST[loc, goal])
         return torch.where(~loaded & (task == NONE), WAIT, act)
+
+    @staticmethod
+    def _claimed(task: torch.Tensor) -> torch.Tensor:
+        """``[B, 4]``: stations some taxi is driving to."""
+        claimed = torch.zeros(task.shape[0], 4, dtype=torch.bool)
+        for i in range(task.shape[1]):
+            has = task[:, i] != NONE
+            claimed[has, task[has, i]] = True
+        return claimed
 
     @staticmethod
     def _match(dist, waiting, task, choosing) -> torch.Tensor:
@@ -106,10 +122,7 @@ class RulePolicy:
         lower index), one station per taxi.
         """
         b, n, s = dist.shape
-        free = waiting.clone()
-        claimed = task != NONE
-        for i in range(n):
-            free[claimed[:, i], task[claimed[:, i], i]] = False
+        free = waiting & ~RulePolicy._claimed(task)
         choice = torch.full((b, n), NONE, dtype=torch.long)
         open_ = choosing.clone()
         for _ in range(n):

@@ -141,3 +141,22 @@ def test_text_navigation_masks_moves_into_walls_and_costs_more_per_move():
     old = two_taxi_hierarchy().node("Navigate_B")  # the first build: -1, every move allowed
     assert old.shaping_reward(obs(), action, obs()).item() == -1.0
     assert two_taxi_hierarchy().context(obs(taxi_loc=7)).available[0, nav, :4].all()
+
+
+def test_coordinated_choices_need_to_see_the_same_steps_choices():
+    """Two free taxis, one passenger: matched, only the nearer goes; unseen, both race."""
+    for rule, tasks in (("coordinated", [[B, NONE]]), ("coordinated-unseen", [[B, B]])):
+        env = TwoTaxiEnv([0], 1, mean_interarrival=float("inf"))
+        policy = RulePolicy(env, rule)
+        env.reset()
+        place(env, [18, 13], passengers={B: Y})  # taxi 0 one move from B, taxi 1 two
+        action = policy.act()
+        assert policy.task.tolist() == tasks, rule
+        assert action[0, 1].item() == (WAIT if rule == "coordinated" else 0)
+    env = TwoTaxiEnv([0], 1, mean_interarrival=float("inf"))
+    policy = RulePolicy(env, "coordinated-unseen")
+    env.reset()
+    place(env, [18, 13], passengers={B: Y})
+    policy.task[0, 0] = B  # taxi 0 chose B at an earlier step: taxi 1 sees it and waits
+    policy.act()
+    assert policy.task.tolist() == [[B, NONE]]
