@@ -21,11 +21,31 @@ communication level)::
     Root ─┬─ Com ────┬─ GetB, GetG, GetR, GetY, Wait, Put   (the same subtasks under both)
           └─ NotCom ─┘
 
-Termination: ``Get_s`` ends when the taxi carries a passenger or station ``s`` has none (another
-taxi took it); ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``; ``Root`` never (the
-task is continuing). ``Com`` / ``NotCom`` stand for one decision and have no termination of
-their own: the COM agent (``hrl_torch.multiagent.Communication``) ends them when their ``U_1``
-child ends, so every ``U_1`` decision is preceded by a communication decision.
+Two tasks are registered, with the same learners (``hrl-torch list``):
+
+- ``two-taxi-text`` and ``two-taxi-text-station``, the task as Section 6.6 describes it:
+  ``Get_s`` starts only where ``s`` has a passenger and ends with a pickup or *at* ``s`` with
+  nobody there: "the first taxi picks up the passenger and the other one returns empty" (the
+  loser of a race drives on to the station; a passenger who arrived meanwhile is its own).
+  Every taxi learns from the one team reward (+20 per delivery, -1 per waiting passenger and
+  step, -10 per illegal action: ``make_text_env``). Footnote 4's arrival rate is read over the
+  grid (``two-taxi-text``: one arrival every ``rate`` steps on average) or per station
+  (``two-taxi-text-station``: every station its own). ``Navigate(t)`` is ``TeamNavigate``:
+  -5 per move inside it and no moves into walls, because the team reward's noise (the other
+  taxi's deliveries) in the moves' values made greedy taxis bump into walls forever;
+- ``two-taxi``, the first build: ``Get_s`` ends as soon as station ``s`` has no passenger
+  (another taxi took it), so a lost race costs nothing after the pickup; each taxi learns from
+  its own share of the reward (its deliveries and illegal actions, half the waiting cost).
+
+``agents.two_taxi_rules`` holds hand-written dispatching rules on the same tasks (racing for the
+nearest passenger, or coordinated choices): they measure how much room the task leaves for
+coordination.
+
+Termination: ``Get_s`` as above; ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``;
+``Root`` never (the task is continuing). ``Com`` / ``NotCom`` stand for one decision and have
+no termination of their own: the COM agent (``hrl_torch.multiagent.Communication``) ends them
+when their ``U_1`` child ends, so every ``U_1`` decision is preceded by a communication
+decision.
 
 State abstractions: each taxi stores only its own variables and the stations' statuses
 (``4**4 = 256``):
@@ -77,25 +97,31 @@ pairs or store values we cannot infer, so only the selfish count is reproduced c
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 
 import torch
 from tensordict import TensorDict
 
 from agents.taxi import Navigate
 from envs.two_taxi import (
+    EAST,
     EMPTY,
     MEAN_INTERARRIVAL,
+    MOVES,
     N_ACTIONS,
     N_LOCATIONS,
     N_STATIONS,
     N_STATIONS_STATES,
     N_STATUS,
+    NORTH,
     PICKUP,
     PUTDOWN,
+    SOUTH,
     STATION_LOC,
     STATION_NAMES,
     THROUGHPUT_WINDOW,
     WAIT,
+    WEST,
     TwoTaxiEnv,
 )
 from hrl_torch.continuing import ThroughputEvaluator
@@ -129,6 +155,33 @@ class StepCostNavigate(Navigate):
         return -torch.ones(action.shape[0], device=action.device)
 
 
+class TeamNavigate(StepCostNavigate):
+    """Navigate(t) of the text's task (team reward): -``cost`` per move, no moves into walls.
+
+    With one team reward a move's reward holds the other taxi's deliveries (+20 now and
+    then), so the moves' values ``V(North)`` ... (one state each, leaf irrelevance) jump by
+    ``alpha * 20 = 4`` whenever the other taxi delivers during one of them. With -1 per move a
+    greedy taxi with frozen tables then bumped into a wall forever when that move's value was
+    above 1 (seen: ``V(West) = 3.8``, the taxi stuck at (1, 2); greedy throughput 0 in 3 of 5
+    selfish seeds at 20,000-80,000 steps). Moves that stay put are masked (no self-loop) and
+    each move costs ``cost`` inside Navigate (a two-move cycle needs both values above it).
+    """
+
+    def __init__(self, target: int, cost: float) -> None:
+        super().__init__(target)
+        self.cost = float(cost)
+
+    def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
+        """-``cost`` per move."""
+        return torch.full((action.shape[0],), -self.cost, device=action.device)
+
+    def child_mask(self, obs: TensorDict) -> torch.Tensor:
+        """``[B, 4]``: North, South, East, West where they leave the square."""
+        loc = obs["taxi_loc"]
+        moves = MOVES.to(loc.device)[loc][:, [NORTH, SOUTH, EAST, WEST]]
+        return moves != loc[:, None]
+
+
 def _root_state(obs: TensorDict) -> torch.Tensor:
     loaded = (obs["status"] != EMPTY).long()
     return (obs["taxi_loc"] * 2 + loaded) * N_STATIONS_STATES + obs["stations"]
@@ -142,8 +195,14 @@ def _loc_status(obs: TensorDict) -> torch.Tensor:
     return obs["taxi_loc"] * N_STATUS + obs["status"]
 
 
-def _get(station: int) -> Subtask:
-    """Get_s: drive to station ``s`` and pick its passenger up (Pickup only at ``s``)."""
+def _get(station: int, text: bool = False) -> Subtask:
+    """Get_s: drive to station ``s`` and pick its passenger up (Pickup only at ``s``).
+
+    ``text``: the text's rule ("the first taxi picks up the passenger and the other one returns
+    empty", Section 6.6): Get_s starts only where ``s`` has a passenger and ends with a pickup
+    or at ``s`` with nobody there; a taxi whose passenger another took drives on to ``s``.
+    Otherwise (the race variant) it ends as soon as ``s`` has no passenger.
+    """
     name = STATION_NAMES[station]
     waiting = f"waiting_{name}"
     at = int(STATION_LOC[station])
@@ -152,12 +211,19 @@ def _get(station: int) -> Subtask:
         there = obs["taxi_loc"] == at
         return torch.stack([~there, there], dim=1)
 
+    def ended(obs: TensorDict) -> torch.Tensor:
+        nobody = obs[waiting] == 0
+        if text:  # only at the station
+            nobody = nobody & (obs["taxi_loc"] == at)
+        return (obs["status"] != EMPTY) | nobody
+
     return Subtask(
         f"Get{name}",
         [NAVIGATE[station], "Pickup"],
         n_states=GET_STATES,
         abstract=_loc_stations,
-        terminated=lambda o: (o["status"] != EMPTY) | (o[waiting] == 0),
+        terminated=ended,
+        initiable=(lambda o: o[waiting] != 0) if text else None,
         child_mask=mask,
     )
 
@@ -171,8 +237,8 @@ def _put_mask(obs: TensorDict) -> torch.Tensor:
     return torch.cat([nav & ~there[:, None], there[:, None]], dim=1)
 
 
-def _below_u1() -> list[Subtask | Primitive]:
-    """The U_1 subtasks (but Wait, a primitive) and everything below them."""
+def _below_u1(text: bool = False) -> list[Subtask | Primitive]:
+    """The U_1 subtasks (but Wait, a primitive) and everything below them (``_get``'s text)."""
     put = Subtask(
         "Put",
         [*NAVIGATE, "Putdown"],
@@ -182,9 +248,12 @@ def _below_u1() -> list[Subtask | Primitive]:
         child_mask=_put_mask,
     )
     return [
-        *(_get(s) for s in range(N_STATIONS)),
+        *(_get(s, text) for s in range(N_STATIONS)),
         put,
-        *(StepCostNavigate(t) for t in range(N_STATIONS)),
+        *(
+            TeamNavigate(t, TEAM_NAV_COST) if text else StepCostNavigate(t)
+            for t in range(N_STATIONS)
+        ),
         Primitive("South", 0),
         Primitive("North", 1),
         Primitive("East", 2),
@@ -195,19 +264,22 @@ def _below_u1() -> list[Subtask | Primitive]:
     ]
 
 
-def two_taxi_hierarchy() -> TaskGraph:
-    """The task graph of Figure 6.10 for one taxi, without the communication level."""
+def two_taxi_hierarchy(text: bool = False) -> TaskGraph:
+    """The task graph of Figure 6.10 for one taxi, without the communication level.
+
+    ``text``: Get_s ends only at its station (``_get``).
+    """
     root = Subtask("Root", U1, n_states=ROOT_STATES, abstract=_root_state)
-    return TaskGraph("Root", [root, *_below_u1()], n_actions=N_ACTIONS)
+    return TaskGraph("Root", [root, *_below_u1(text)], n_actions=N_ACTIONS)
 
 
-def two_taxi_com_hierarchy() -> TaskGraph:
+def two_taxi_com_hierarchy(text: bool = False) -> TaskGraph:
     """Figure 6.10 with the communication level: Root -> Com, NotCom -> U_1 (shared)."""
     root = Subtask("Root", ["Com", "NotCom"], n_states=ROOT_STATES, abstract=_root_state)
     levels = [
         Subtask(name, U1, n_states=ROOT_STATES, abstract=_root_state) for name in ("Com", "NotCom")
     ]
-    return TaskGraph("Root", [root, *levels, *_below_u1()], n_actions=N_ACTIONS)
+    return TaskGraph("Root", [root, *levels, *_below_u1(text)], n_actions=N_ACTIONS)
 
 
 def value_counts(graph: TaskGraph, joint: Mapping[str, int] | None = None) -> dict[str, int]:
@@ -254,6 +326,9 @@ GAMMA = 0.95  # per step
 INIT = 0.0  # external completions below the U_1 parents
 #: pessimistic internal completions inside Navigate (the longest route's discounted cost)
 INIT_INTERNAL = -10.0
+#: the text's task: Navigate's internal cost per move (``TeamNavigate``); its internal
+#: completions start at ``INIT_INTERNAL * TEAM_NAV_COST``
+TEAM_NAV_COST = 5.0
 #: Initial completions at the U_1 parents (Root, Com, NotCom): optimistic for the tasks that
 #: serve passengers, pessimistic for Wait. With 0 for all, a greedy taxi waited forever at root
 #: states it had not met in training (frozen tables; the root's state holds every station and,
@@ -289,10 +364,30 @@ def make_env(
     )
 
 
-def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
+def make_text_env(
+    seeds,
+    envs_per_learner: int,
+    backend: str = "torch",
+    n_agents: int = 2,
+    mean_interarrival: float = MEAN_INTERARRIVAL,
+    arrivals: str = "grid",
+):
+    """The text's task: every taxi learns from the one team reward (deliveries, waiting)."""
+    return TwoTaxiEnv(
+        seeds,
+        envs_per_learner,
+        n_agents,
+        mean_interarrival,
+        max_episode_steps=None,
+        own_rewards=False,
+        arrivals=arrivals,
+    )
+
+
+def _maxq(graph: TaskGraph, sets: int, nav_cost: float = 1.0) -> MaxQLearner:
     """MAXQ-Q; the U_1 parents' completions start at ``SERVE_INIT`` / ``WAIT_INIT``."""
     learner = MaxQLearner(
-        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL
+        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL * nav_cost
     )
     with torch.no_grad():
         for parent in ("Root", "Com", "NotCom"):
@@ -330,48 +425,76 @@ def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
     )
 
 
-def com_graph() -> TaskGraph:
+def com_graph(text: bool = False) -> TaskGraph:
     """The COM graph with ``Com``'s completions joint over the other taxi's U_1 task."""
-    return cooperative_graph(two_taxi_com_hierarchy(), COM_COOPERATION, 2)
+    return cooperative_graph(two_taxi_com_hierarchy(text), COM_COOPERATION, 2)
 
 
-def _algos() -> dict[str, AlgoSpec]:
+def cooperative_two_taxi_graph(text: bool = False) -> TaskGraph:
+    """Cooperative HRL's graph: Root's completions joint over the other taxi's U_1 task."""
+    return cooperative_graph(two_taxi_hierarchy(text), COOPERATION, 2)
+
+
+def _algos(text: bool = False, **env_options) -> dict[str, AlgoSpec]:
+    """The learners of Section 6.6 (``text``: on the graphs whose Get ends at its station)."""
     spec = algo_family(
-        make_learner=_maxq,
+        make_learner=partial(_maxq, nav_cost=TEAM_NAV_COST) if text else _maxq,
         make_exploration=_epsilon,
         train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
         envs_per_learner=16,
     )
-
+    flat = partial(two_taxi_hierarchy, text)
+    com = partial(com_graph, text)
     algos = {
-        "selfish": spec(two_taxi_hierarchy, "selfish multi-agent HRL: each taxi learns alone"),
+        "selfish": spec(flat, "selfish multi-agent HRL: each taxi learns alone", **env_options),
         "cooperative": spec(
-            lambda: cooperative_graph(two_taxi_hierarchy(), COOPERATION, 2),
+            partial(cooperative_two_taxi_graph, text),
             "Cooperative HRL: Root's completions know the other taxi's U_1 task",
             MultiAgentConfig(COOPERATION),
+            **env_options,
         ),
-        "single": spec(two_taxi_hierarchy, "single-agent HRL: one taxi", n_agents=1),
+        "single": spec(flat, "single-agent HRL: one taxi", n_agents=1, **env_options),
     }
     for cost in COM_COSTS:
         algos[f"com-{cost}"] = spec(
-            com_graph,
+            com,
             f"COM-Cooperative HRL, ComCost {cost}: Root chooses Com (asks) or NotCom",
             MultiAgentConfig(COM_COOPERATION, communication=Communication(cost=float(cost))),
+            **env_options,
         )
     for loss in (50, 100):  # beyond the text: replies lost with probability loss %
         algos[f"com-0-loss{loss}"] = spec(
-            com_graph,
+            com,
             f"COM-Cooperative HRL, ComCost 0, {loss}% of the replies lost",
             MultiAgentConfig(COM_COOPERATION, communication=Communication(loss=loss / 100)),
+            **env_options,
         )
     return algos
 
 
+#: the first build: a Get ends when its passenger is gone, arrivals over the grid, own rewards
 DOMAIN = DomainSpec(
     name="two-taxi",
     description="two taxis serving arriving passengers (Figure 6.10), discrete time, continuing",
     make_env=make_env,
     algos=_algos(),
+    make_evaluator=_evaluator,
+)
+#: the text's task: Get ends at its station (the loser returns empty), one team reward
+DOMAIN_TEXT = DomainSpec(
+    name="two-taxi-text",
+    description="two taxis as Section 6.6 builds them: a race's loser returns empty, team "
+    "reward, one arrival process over the grid",
+    make_env=make_text_env,
+    algos=_algos(text=True),
+    make_evaluator=_evaluator,
+)
+#: the text's task, footnote 4 read per station: each station its own arrival process
+DOMAIN_TEXT_STATION = DomainSpec(
+    name="two-taxi-text-station",
+    description="two-taxi-text with an arrival process per station (footnote 4 per station)",
+    make_env=make_text_env,
+    algos=_algos(text=True, arrivals="station"),
     make_evaluator=_evaluator,
 )
 

@@ -29,10 +29,15 @@ quietest; the prose around Figure 6.13 ("as the arrival rate becomes smaller, co
 becomes more important") speaks of frequency, i.e. of larger numbers here.
 ``mean_interarrival=float("inf")`` turns arrivals off.
 
+The footnote's "at stations" also reads *per station*: ``arrivals="station"`` gives every
+station its own Bernoulli process of mean gap ``mean_interarrival`` (the grid then sees four
+times as many arrivals; up to four in one step). ``arrivals="grid"`` (the default, above) is
+the original reading; both are measured in ``docs/reproduction.md``.
+
 **One step**, in this order: every passenger waiting at a station waits one more step; the
 taxis act at once (moves; pickups, a station's passenger going to the lowest-index taxi that
 picks up there; putdowns); then the step's arrival, if any (a station emptied by a pickup of
-this step can take it).
+this step can take it; per station, every station's own arrival).
 
 ## Action Space
 ``Discrete(7)`` per taxi: 0 south, 1 north, 2 east, 3 west, 4 pickup, 5 putdown (the numbering
@@ -85,6 +90,8 @@ None: the task is continuing (never terminated; no time limit unless one is aske
 ## Version History
 * v0: Section 6.6; the arrival process per footnote 4, the rewards, the tie rules and the
   order within a step are our choices (the text gives none of them).
+* ``arrivals="station"`` added (footnote 4 read per station); ``own_rewards=False`` (one team
+  reward for both taxis) is what the text's task ``two-taxi-text`` uses.
 """
 
 from __future__ import annotations
@@ -114,6 +121,8 @@ DELIVERY_REWARD = 20.0
 WAITING_COST = 1.0
 ILLEGAL_COST = 10.0
 MEAN_INTERARRIVAL = 10.0
+#: readings of footnote 4: one arrival process over the grid, or one per station
+ARRIVALS = ("grid", "station")
 #: the text's window for throughput
 THROUGHPUT_WINDOW = 5_000
 
@@ -178,6 +187,8 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         mean_interarrival: the text's "passenger arrival rate": mean steps between arrivals
             over the whole grid (>= 1; ``inf`` for no arrivals).
         max_episode_steps: optional time limit; the task itself is continuing (default none).
+        arrivals: ``"grid"``: at most one arrival per step, at a uniform station (rate over
+            the grid); ``"station"``: every station has its own arrival process of that rate.
         own_rewards: each taxi's reward is its own share of the team reward (``[B, n]``, their
             sum is the team's): its own deliveries and illegal actions, and an equal share of
             the waiting cost.
@@ -217,9 +228,13 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         max_episode_steps: int | None = None,
         own_rewards: bool = False,
         device: torch.device | str = "cpu",
+        arrivals: str = "grid",
     ) -> None:
         super().__init__(seeds, envs_per_learner, n_agents, N_ACTIONS, max_episode_steps, device)
         self.own_rewards = own_rewards
+        if arrivals not in ARRIVALS:
+            raise ValueError(f"arrivals must be one of {ARRIVALS}, got {arrivals!r}")
+        self.arrivals = arrivals
         if not mean_interarrival >= 1.0:
             raise ValueError(f"mean_interarrival must be >= 1 steps, got {mean_interarrival}")
         self.mean_interarrival = float(mean_interarrival)
@@ -290,19 +305,7 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         self.station_age = torch.where(taken, 0, self.station_age)
         self.taxi_loc = self._moves[self.taxi_loc, action]
 
-        # the step's arrival
-        arrive = u[:, 0] < self.arrival_prob
-        station = (u[:, 1] * N_STATIONS).long().clamp_max(N_STATIONS - 1)
-        other = (u[:, 2] * (N_STATIONS - 1)).long().clamp_max(N_STATIONS - 2)
-        slot = one_hot(station, N_STATIONS).bool() & arrive[:, None]
-        occupied = self.station_dest != NO_PASSENGER
-        new = slot & ~occupied
-        self.station_dest = torch.where(
-            new, (other + (other >= station))[:, None], self.station_dest
-        )
-        self.station_age = torch.where(new, 0, self.station_age)
-        self.n_arrived = arrive.long()
-        self.n_lost = (slot & occupied).any(1).long()
+        self._arrive(u)
         self.picked_up, self.delivered = picked, delivered
         self.last_action = action.clone()
 
@@ -310,6 +313,25 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         never = torch.zeros(b, dtype=torch.bool, device=dev)  # continuing
         every = torch.ones_like(acting)  # discrete time: every taxi acts at every step
         return reward, torch.ones(b, device=dev), never, every
+
+    def _arrive(self, u: torch.Tensor) -> None:
+        """The step's arrivals (``u [B, 3]``: the grid's draws; per station, fresh ones)."""
+        if self.arrivals == "grid":
+            arrive = u[:, 0] < self.arrival_prob
+            station = (u[:, 1] * N_STATIONS).long().clamp_max(N_STATIONS - 1)
+            slot = one_hot(station, N_STATIONS).bool() & arrive[:, None]  # [B, 4]
+            other = (u[:, 2] * (N_STATIONS - 1)).long().clamp_max(N_STATIONS - 2)[:, None]
+        else:  # every station its own Bernoulli process (draws: 4 arrivals, 4 destinations)
+            v = self.rng.uniform(2 * N_STATIONS)
+            slot = v[:, :N_STATIONS] < self.arrival_prob
+            other = (v[:, N_STATIONS:] * (N_STATIONS - 1)).long().clamp_max(N_STATIONS - 2)
+        stations = torch.arange(N_STATIONS, device=self.device)
+        occupied = self.station_dest != NO_PASSENGER
+        new = slot & ~occupied
+        self.station_dest = torch.where(new, other + (other >= stations), self.station_dest)
+        self.station_age = torch.where(new, 0, self.station_age)
+        self.n_arrived = slot.sum(1)
+        self.n_lost = (slot & occupied).sum(1)
 
     def _stations(self) -> torch.Tensor:
         """``stations`` index ``[B]`` (``sum_s code_s * 4**s``)."""

@@ -250,3 +250,55 @@ def test_pettingzoo_and_torchrl_forms_pass_their_checkers():
         api_test(MultiAgentAECEnv(make, seed=3), num_cycles=150)
         parallel_api_test(MultiAgentParallelEnv(make, seed=3), num_cycles=150)
     check_env_specs(MultiAgentTorchRLEnv(make([0, 1], 3)))
+
+
+@pytest.mark.parametrize("interarrival", [5, 20])
+def test_per_station_arrivals_are_one_process_per_station(interarrival):
+    n, steps = 2000, 60
+    env = TwoTaxiEnv([0, 1], n // 2, mean_interarrival=interarrival, arrivals="station")
+    env.reset()
+    wait = torch.full((n, 2), WAIT)
+    counts, arrived, several = torch.zeros(4), 0, 0
+    for _ in range(steps):
+        td = env.step(wait)
+        counts += (env.station_dest != NO_PASSENGER).sum(0)  # each arrival, by station
+        arrived += int(td["n_arrived"].sum())
+        several += int((td["n_arrived"] > 1).sum())
+        assert torch.equal(td["n_waiting"], td["n_arrived"])  # every station was free
+        env.station_dest.fill_(NO_PASSENGER)  # keep every station free
+    p = 1 / interarrival
+    sd = (p * (1 - p) / (n * steps)) ** 0.5
+    for s in range(4):  # each station its own rate 1 / interarrival, not a quarter of it
+        assert abs(counts[s].item() / (n * steps) - p) < 4.5 * sd
+    assert abs(arrived / (n * steps) - 4 * p) < 4.5 * 2 * sd
+    assert several > 0  # up to four arrivals in one step; the grid process has at most one
+
+
+def test_per_station_arrivals_at_occupied_stations_are_lost_one_by_one():
+    n = 500
+    env = TwoTaxiEnv([0], n, mean_interarrival=2, arrivals="station")
+    env.reset()
+    env.station_dest = torch.tensor([[G, Y, B, R]]).repeat(n, 1)
+    wait = torch.full((n, 2), WAIT)
+    for _ in range(10):
+        td = env.step(wait)
+        assert torch.equal(td["n_lost"], td["n_arrived"])
+    assert torch.equal(env.station_dest, torch.tensor([[G, Y, B, R]]).repeat(n, 1))
+    with pytest.raises(ValueError, match="arrivals"):
+        TwoTaxiEnv([0], 1, arrivals="taxi")
+
+
+def test_team_reward_is_the_same_for_both_taxis():
+    env = TwoTaxiEnv([0], 1, mean_interarrival=NO_ARRIVALS)  # one reward per row: the team's
+    env.reset()
+    place(env, [23, 12], status=[Y, EMPTY], passengers={B: Y})
+    td = step(env, PICKUP, NORTH)  # taxi 0 loaded at B: an illegal pickup; B's passenger waits
+    assert td["agents", "reward"].tolist() == [[-11.0, -11.0]]
+    place(env, [20, 12], status=[Y, EMPTY], passengers={B: Y, R: G})
+    td = step(env, PUTDOWN, WAIT)  # taxi 0 delivers at Y; two passengers wait
+    assert td["reward"].item() == 20.0 - 2.0
+    assert td["agents", "reward"].tolist() == [[18.0, 18.0]]
+    own = TwoTaxiEnv([0], 1, mean_interarrival=NO_ARRIVALS, own_rewards=True)  # the first build
+    own.reset()
+    place(own, [20, 12], status=[Y, EMPTY], passengers={B: Y, R: G})
+    assert step(own, PUTDOWN, WAIT)["agents", "reward"].tolist() == [[19.0, -1.0]]
