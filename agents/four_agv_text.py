@@ -3,19 +3,29 @@
 The ``four-agv-text`` domain; ``four-agv`` (``agents/four_agv.py``) is the earlier reading, kept
 for comparison. The env is the same ``FourAGVEnv`` (Figure 6.2, Table 6.1); what differs:
 
-* **Committed jobs.** ``DM_i`` (``DA_i``) may start whenever the AGV is empty and ends only
-  when its item is delivered into ``Di`` (at ``WA``). A lost race is not the end of the job:
+* **Committed jobs.** ``DM_i`` may start whenever the AGV is empty and ``Di`` has room,
+  ``DA_i`` whenever it is empty and an assembly waits in ``Pi`` or is on its way (a part in
+  ``Di``). Each ends only when its item is delivered into ``Di`` (at ``WA``), except a
+  ``DA_i`` whose assembly can no longer come (``Pi`` and ``Di`` both empty). A lost race is
+  not the end:
   an AGV that finds its bay ``Wi`` (its ``Pi``) empty, or ``Di`` full with part ``i`` on
   board, waits there (``Idle``, 1 s at a time, time passes) until it can load (unload). This is
   the text's "once the first agent completes the task, the other agents might have to wait for
   a long time to complete the task, due to the constraints on the number of parts that can be
-  stored" (after Table 6.1).
+  stored" (after Table 6.1). The limits keep four AGVs from waiting for each other for ever:
+  with ``DM_i`` open to an empty AGV at a full ``Di`` and ``DA_i`` with nothing coming,
+  every training row of Cooperative HRL with 1 ms moves ended in such a deadlock (throughput
+  0 after 45,000 steps; all four AGVs waiting at full ``Di`` or empty ``Pi``).
 * **The root sees buffer levels** (as the root of Chapter 4's AGV task does), not which jobs
   can start: per station ``i``, whether part ``i`` can go now (it waits in ``Wi`` and ``Di``
   has room) and the level of ``Pi`` (empty, partly full, full: the machine is blocked), 6
   values, ``6**4 = 1,296`` states. The full levels (``4**8 x 2**4``, about 10**6 states)
   would make Cooperative HRL's joint root table ``10**6 x 9**3 x 9`` entries per agent; this
-  one is ``1,296 x 729 x 9 = 8.5 M``. ``DM_i`` keeps ``100 x 9 x 4 x 2`` states (location,
+  one is ``1,296 x 729 x 8 = 7.6 M``. The root's children are the text's ``U_1 = {DM_1..4,
+  DA_1..4}``, no ``Idle``: an AGV waits inside its job. (With ``Idle`` at the root and the
+  team reward, idling looked as good as working: the team's deliveries pay the idler too,
+  and 2 s selfish agents delivered 0-5 assemblies per 1,000 s greedy; without it, 26.)
+  ``DM_i`` keeps ``100 x 9 x 4 x 2`` states (location, keeps ``100 x 9 x 4 x 2`` states (location,
   status, ``Di``, ``Wi``) and ``DA_i`` ``100 x 9 x 4`` (location, status, ``Pi``), the text's
   counts, which are exactly what their wait-or-act choices need.
 * **One team reward**: every agent receives the team's assemblies (``own_rewards=False``),
@@ -32,19 +42,19 @@ import torch
 from tensordict import TensorDict
 
 from agents.four_agv import (
-    COOPERATION,
     DISPATCH_RULES,
+    GAMMA,
     GUARD,
     NAV_TARGETS,
     NO_JOB,
     Navigate,
     _epsilon,
     _lexicographic_argmax,
-    _maxq,
     _stack,
     da_states,
     dm_states,
     flat_graph,
+    internal_init,
     primitives,
     step_cost,
 )
@@ -67,14 +77,18 @@ from envs.four_agv import (
 )
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.exploration import Linear
 from hrl_torch.graph import Subtask, TaskGraph
-from hrl_torch.learners import RuleLearner
-from hrl_torch.multiagent import MultiAgentConfig, cooperative_graph
+from hrl_torch.learners import MaxQLearner, RuleLearner
+from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.trainer import TrainConfig
 
 #: values per station in the root state: (part ready 0/1) x (Pi empty / partly full / full)
 STATION_CODES = 6
 ROOT_STATES = STATION_CODES**N_STATIONS
+#: Cooperative HRL at the root; ``U_1`` has no ``Idle``: an agent without a job (only at a
+#: reset) gets a code of its own (8 jobs + 1 values per other agent, as with ``Idle``)
+COOPERATION = Cooperation((("Root",),))
 
 
 def root_abstract(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
@@ -99,8 +113,8 @@ def _deliver_material(i: int, capacity: int) -> Subtask:
     def abstract(o):
         return ((o["location"] * 9 + o["status"]) * levels + o[d]) * 2 + o[w]
 
-    def initiable(o):
-        return (o["status"] == EMPTY) | (o["status"] == k)
+    def initiable(o):  # empty with room in Di now (a lost race may still find it full)
+        return ((o["status"] == EMPTY) & (o[d] < capacity)) | (o["status"] == k)
 
     def terminated(o):
         s = o["status"]
@@ -132,17 +146,19 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
     Waits (``Idle``) at an empty ``Pi``; ends only on the delivery.
     """
     k, asm = i + 1, N_STATIONS + i + 1
-    p = f"pick_up_{k}"
+    p, d = f"pick_up_{k}", f"drop_off_{k}"
 
     def abstract(o):
         return (o["location"] * 9 + o["status"]) * (capacity + 1) + o[p]
 
-    def initiable(o):
-        return (o["status"] == EMPTY) | (o["status"] == asm)
+    def initiable(o):  # an assembly waits, or one is on its way (a part in Di)
+        coming = (o[p] > 0) | (o[d] > 0)
+        return ((o["status"] == EMPTY) & coming) | (o["status"] == asm)
 
-    def terminated(o):
+    def terminated(o):  # delivered, or nothing left to come (no assembly, no part in Di)
         s = o["status"]
-        return (o["delivery"] == asm) | ((s != EMPTY) & (s != asm))
+        gone = (s == EMPTY) & (o[p] == 0) & (o[d] == 0)
+        return (o["delivery"] == asm) | ((s != EMPTY) & (s != asm)) | gone
 
     def child_mask(o):  # Nav_P, Load, Nav_WA, Unload, Idle (wait at an empty Pi)
         empty, has = o["status"] == EMPTY, o[p] > 0
@@ -172,13 +188,18 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
 
 
 def text_hierarchy(capacity: int = CAPACITY) -> TaskGraph:
-    """Figure 6.3 with committed, waiting jobs and the buffer-level root (module docstring)."""
+    """Figure 6.3 with committed, waiting jobs and the buffer-level root (module docstring).
+
+    The root's children are ``U_1 = {DM_1..4, DA_1..4}`` (the text's list; no ``Idle``: an AGV
+    waits inside its job). Some job is always initiable: ``DM_i`` whenever the AGV is empty,
+    the job it carries for otherwise.
+    """
     dm = [_deliver_material(i, capacity) for i in range(N_STATIONS)]
     da = [_deliver_assembly(i, capacity) for i in range(N_STATIONS)]
     navs = [Navigate(t) for t in NAV_TARGETS]
     root = Subtask(
         "Root",
-        [*(x.name for x in dm + da), "Idle"],
+        [x.name for x in dm + da],
         n_states=ROOT_STATES,
         abstract=lambda o: root_abstract(o, capacity),
     )
@@ -194,7 +215,8 @@ class PerAGVRule:
     assembly in ``Pi``), judged from its own location, blind to what the other AGVs have taken;
     several AGVs may take the same job. It keeps the job until its delivery: it drives by the
     shortest path, loads when the item is there and otherwise waits (``Idle``); loaded, it
-    drives to ``Di`` (``WA``) and unloads, waiting while ``Di`` is full.
+    drives to ``Di`` (``WA``) and unloads, waiting while ``Di`` is full. (As ``DA_i``, it drops
+    a fetch at ``Pi`` whose assembly can no longer come: ``Pi`` and ``Di`` both empty.)
 
     Args:
         rule: the centralised rule whose ``keys`` it uses (``DISPATCH_RULES``).
@@ -249,6 +271,9 @@ class PerAGVRule:
         done = shared("is_init")[:, None] | (per_agent("delivery") > 0)
         job = torch.where(done & acting, NO_JOB, base.job)
         job = torch.where(empty, job, status - 1)  # loaded: the job is what it carries
+        station = (job - N_STATIONS).clamp(0, N_STATIONS - 1)
+        nothing = (pick.gather(1, station) == 0) & (drop.gather(1, station) == 0)
+        job = torch.where(empty & (job >= N_STATIONS) & nothing, NO_JOB, job)  # cannot come
 
         # 2. each free acting AGV takes the best job with an item waiting, on its own view
         open_ = (waiting > 0) & torch.cat([drop < cap, torch.ones_like(drop, dtype=torch.bool)], -1)
@@ -310,6 +335,16 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
 def _per_agv_rule(name: str, n_agents: int = 4):
     def learner(graph: TaskGraph, sets: int) -> RuleLearner:
         return RuleLearner(graph, sets, lambda rows: PerAGVRule(name, rows // n_agents, n_agents))
+
+    return learner
+
+
+def _maxq(timing: FourAGVTiming = TABLE_6_1, alpha: float | Linear = 0.2):
+    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``."""
+
+    def learner(graph: TaskGraph, sets: int) -> MaxQLearner:
+        init = internal_init(timing)
+        return MaxQLearner(graph, sets, alpha=alpha, gamma=GAMMA, init_internal=init)
 
     return learner
 

@@ -9,7 +9,11 @@ dispatching rules without reservations:
 
 - Figure 6.4: Cooperative HRL, selfish multi-agent HRL, single-agent HRL (Table 6.1 timing);
 - Figure 6.5: the same three with 2 s primitive actions (``*-2s``);
-- Figure 6.7: Cooperative HRL and the per-AGV rules FCFS, HQF, NSF, with 1 ms and 2 s moves.
+- Figure 6.7: Cooperative HRL and the per-AGV rules FCFS, HQF, NSF (``fig_6_7``), and the same
+  with 2 s moves (``fig_6_7_2s``).
+
+A figure's runs are shared with the figures after it in one process (``--only fig_6_5
+fig_6_7_2s`` trains ``cooperative-2s`` once).
 
 ``old`` (domain ``four-agv``, ``agents/four_agv.py``): jobs that end when their item is gone,
 the "job available" root, own rewards, centralised rules with reservations:
@@ -56,16 +60,8 @@ FIGURES_OLD = {
 FIGURES_TEXT = {
     "fig_6_4": [("cooperative", {}), ("selfish", {}), ("single", {})],
     "fig_6_5": [("cooperative-2s", {}), ("selfish-2s", {}), ("single-2s", {})],
-    "fig_6_7": [
-        ("cooperative", {}),
-        ("fcfs", {}),
-        ("hqf", {}),
-        ("nsf", {}),
-        ("cooperative-2s", {}),
-        ("fcfs-2s", {}),
-        ("hqf-2s", {}),
-        ("nsf-2s", {}),
-    ],
+    "fig_6_7": [("cooperative", {}), ("fcfs", {}), ("hqf", {}), ("nsf", {})],
+    "fig_6_7_2s": [("cooperative-2s", {}), ("fcfs-2s", {}), ("hqf-2s", {}), ("nsf-2s", {})],
 }
 VARIANTS = {"text": ("four-agv-text", FIGURES_TEXT), "old": ("four-agv", FIGURES_OLD)}
 

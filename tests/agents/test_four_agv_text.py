@@ -54,7 +54,11 @@ def test_state_counts_and_the_root_reads_buffer_levels():
     assert g.node("DM_1").n_states == dm_states() == 100 * 9 * 4 * 2
     assert g.node("DA_4").n_states == da_states() == 100 * 9 * 4
     assert g.node("DA_2").children_names == ("Nav_P_2", "Load", "Nav_WA", "Unload", "Idle")
-    coop = cooperative_graph(g, four_agv.COOPERATION, 4)
+    assert g.node("Root").children_names == (
+        *(f"DM_{i}" for i in range(1, 5)),
+        *(f"DA_{i}" for i in range(1, 5)),
+    )
+    coop = cooperative_graph(g, four_agv_text.COOPERATION, 4)
     assert coop.node("Root").n_states == 1_296 * 9**3
     # every root state is reached, and P1's three levels give three different states
     fields = decode(torch.arange(0, n_flat_states(), 9_973))
@@ -72,8 +76,13 @@ def test_jobs_are_committed_and_wait_at_an_empty_bay_or_a_full_buffer():
     dm, da = g.node("DM_1"), g.node("DA_3")
     # may start with nothing to fetch; does not end when the item is gone, only on delivery
     nothing = obs_of()
-    assert bool(dm.initiable(nothing)) and bool(da.initiable(nothing))
-    assert not bool(dm.terminated(nothing)) and not bool(da.terminated(nothing))
+    assert bool(dm.initiable(nothing)) and not bool(da.initiable(nothing))
+    assert not bool(dm.initiable(obs_of(drop_off_1=3)))  # no room in D1 now
+    assert bool(da.initiable(obs_of(drop_off_3=1)))  # an assembly is on its way
+    assert bool(da.initiable(obs_of(pick_up_3=1))) and bool(da.initiable(obs_of(status=7)))
+    assert not bool(dm.terminated(nothing)) and not bool(dm.terminated(obs_of(drop_off_1=3)))
+    assert not bool(da.terminated(obs_of(drop_off_3=1)))  # waits for the machine
+    assert bool(da.terminated(nothing))  # nothing can come any more
     assert bool(dm.terminated(obs_of(delivery=1))) and bool(da.terminated(obs_of(delivery=7)))
     # at an empty bay only Idle (wait); at a bay with the part only Load
     names = dm.children_names
