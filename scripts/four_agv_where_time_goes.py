@@ -8,7 +8,7 @@ full). Prints the shares (mean over seeds) and the throughput. It explains what 
 machines busy all the time mean the capacity (166.7 assemblies per 1,000 s); AGVs waiting most
 of the time mean the vehicles.
 
-    python scripts/four_agv_where_time_goes.py RUN_DIR [RUN_DIR ...]
+    python scripts/four_agv_where_time_goes.py RUN_DIR [RUN_DIR ...] [--window SECONDS]
 """
 
 from __future__ import annotations
@@ -54,10 +54,15 @@ def _machine_kind(env) -> torch.Tensor:
     return torch.where(env.busy, 0, torch.where(blocked, 2, 1))
 
 
-def where_time_goes(run_dir: str) -> str:
-    """Shares of AGV and machine time over the run's greedy evaluation window."""
+def where_time_goes(run_dir: str, window: float | None = None) -> str:
+    """Shares of AGV and machine time over the run's greedy evaluation window.
+
+    ``window``: count this many seconds after the burn-in instead of the run's window.
+    """
     trainer, _ = evaluate_run(run_dir)
     ev, env = trainer.evaluator, trainer.eval_env
+    if window is not None:
+        ev.horizon_time = window
     env.rng.load_state_dict({"counter": 0})
     agent = trainer.evaluation_agent(env, "eval-explore")
     agent.freeze_values(ev.max_steps)
@@ -103,10 +108,11 @@ def where_time_goes(run_dir: str) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dirs", nargs="+")
+    parser.add_argument("--window", type=float, help="seconds counted (default: the run's)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     for run_dir in args.run_dirs:
-        print(where_time_goes(run_dir), flush=True)
+        print(where_time_goes(run_dir, args.window), flush=True)
 
 
 if __name__ == "__main__":
