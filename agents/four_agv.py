@@ -1,5 +1,11 @@
 """The four-AGV task graph of Figure 6.3 and the AGV dispatching rules of Figure 6.7.
 
+This is the ``four-agv`` domain, the first reading of Section 6.4: jobs end when their item is
+gone, the root sees which jobs can start, each AGV learns from its own deliveries and the rules
+are centralised with reservations. ``agents/four_agv_text.py`` (``four-agv-text``) is the
+reading closer to the text (committed jobs that wait, a buffer-level root, one team reward,
+per-AGV rules); both are kept and measured (``docs/reproduction.md``).
+
 Task graph (one copy per agent; each agent row of ``FourAGVEnv.agent_rows`` is its
 observation)::
 

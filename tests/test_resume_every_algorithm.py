@@ -50,7 +50,12 @@ EVAL_HORIZON, EVAL_BURN_IN = 20, 5  # continuing tasks: short throughput evaluat
 #: (domain, algo) -> reason, for registered entries that learn nothing (heuristic baselines):
 #: skipped.
 NON_LEARNING: dict[tuple[str, str], str] = {
-    ("four-agv", rule): "a dispatching rule learns nothing" for rule in ("fcfs", "hqf", "nsf")
+    (domain, rule): "a dispatching rule learns nothing"
+    for domain, rules in (
+        ("four-agv", ("fcfs", "hqf", "nsf")),
+        ("four-agv-text", ("fcfs", "hqf", "nsf", "fcfs-2s", "hqf-2s", "nsf-2s")),
+    )
+    for rule in rules
 }
 #: (domain, algo) -> reason, for learners whose state cannot change within this tiny budget;
 #: every other case must change its learner after the checkpoint (else the case is vacuous).
@@ -67,6 +72,9 @@ NO_RUNNING_REWARD: dict[str, str] = {
     d: "the only reward (+1 per assembly) comes with the Unload step that ends DA_i"
     for d in ("agv", "agv-ct", "four-agv")
 }
+NO_RUNNING_REWARD["four-agv-text"] = (
+    "the only reward is the team's assemblies; none is delivered within the budget"
+)
 
 
 def _cases() -> list:
