@@ -20,7 +20,9 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDict
+from torch import nn
 
+from hrl_torch.devices import apply_to_tensors, holds_tensor, move_attributes
 from hrl_torch.rng import BatchRNG
 
 
@@ -165,13 +167,12 @@ class BatchedEnv:
         device = torch.device(device)
         if device == self.device:
             return self
+        move = lambda t: t.to(device)  # noqa: E731
         for name, value in vars(self).items():
-            if isinstance(value, torch.Tensor):
-                setattr(self, name, value.to(device))
-            elif isinstance(value, dict) and all(
-                isinstance(v, torch.Tensor) for v in value.values()
-            ):
-                setattr(self, name, {k: v.to(device) for k, v in value.items()})
+            if name != "rng" and holds_tensor(value):
+                setattr(self, name, apply_to_tensors(move, value))
+            if _plain_helper(value):  # (a helper object's tensors: a distribution's support)
+                move_attributes(value, move)
         self.rng = self.rng.to(device)
         self.device = device
         return self
@@ -224,3 +225,13 @@ class BatchedEnv:
                 )
             setattr(self, k, value.to(self.device).clone())
         self.rng.load_state_dict(state["rng"])
+
+
+def _plain_helper(value) -> bool:
+    """A plain object an env keeps (not a module, env, random stream or type)."""
+    owned = type(value).__module__.split(".")[0] in ("envs", "agents", "hrl_torch")
+    return (
+        owned
+        and hasattr(value, "__dict__")
+        and not isinstance(value, (type, nn.Module, BatchRNG, BatchedEnv))
+    )

@@ -112,11 +112,12 @@ class HierarchicalExecutor:
         device = graph.node_children.device
         self.device = device
         long = dict(dtype=torch.long, device=device)
-        if learner is None:
-            learner = torch.arange(batch_size, **long) // (envs_per_learner or batch_size)
+        if learner is None:  # (made on the CPU: n_learners is read before the move)
+            learner = torch.arange(batch_size) // (envs_per_learner or batch_size)
+        # read where the caller made it (the CPU: ``meta`` and CUDA rows need no host read)
+        self.n_learners = int(learner.max()) + 1 if batch_size else 0
         self.learner = learner.to(device)
         self.envs_per_learner = envs_per_learner or batch_size
-        self.n_learners = int(self.learner.max()) + 1 if batch_size else 0
         self.depth = graph.max_levels
         self.levels = torch.arange(self.depth, **long)
         self.rows = torch.arange(batch_size, **long)
@@ -483,10 +484,9 @@ class HierarchicalExecutor:
 
 def _memory_feature_depth(graph: TaskGraph) -> int:
     """The deepest level where a node with invocation memory and features runs (-1: none)."""
-    device = graph.inst_node.device
-    nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long, device=device)
-    memory_inst = torch.isin(graph.inst_node, nodes)
-    return int(graph.inst_depth[memory_inst].max()) if memory_inst.any() else -1
+    nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long)
+    memory_inst = torch.isin(graph.host("inst_node"), nodes)  # (on the CPU)
+    return int(graph.host("inst_depth")[memory_inst].max()) if memory_inst.any() else -1
 
 
 def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

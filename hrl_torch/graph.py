@@ -18,6 +18,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from hrl_torch.devices import KeepsHostCopies
 from hrl_torch.graph_compile import compile_instances, compile_nodes, validate
 from hrl_torch.ops import columns, lookup
 from hrl_torch.subtask import (  # noqa: F401  (Subtask, Primitive, GraphError: re-exported)
@@ -57,7 +58,7 @@ class StepContext:
     table_row: torch.Tensor | None = None
 
 
-class TaskGraph(nn.Module):
+class TaskGraph(KeepsHostCopies, nn.Module):
     """A validated task DAG and its unrolled instance tree.
 
     Args:

@@ -266,7 +266,7 @@ class LevelDraws:
     def __init__(self, rng: BatchRNG, graph, per_level: int) -> None:
         self.rng = rng
         self.width = graph.max_levels * per_level  # of the whole draw
-        self.levels = choosing_levels(graph, per_level)  # [levels - 1, per_level]
+        self.levels = choosing_levels(graph, per_level).to(rng.device)  # [levels - 1, width]
         self.counter: int | None = None
 
     def new_step(self) -> None:

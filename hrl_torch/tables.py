@@ -14,11 +14,12 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
 from hrl_torch.ops import lookup
 
 
-class TableLayout(nn.Module):
+class TableLayout(MovesTensorAttrs, nn.Module):
     """Table nodes of a learner over a task graph.
 
     Args:
@@ -66,7 +67,7 @@ class TableLayout(nn.Module):
         return self.table_is_primitive.nonzero().squeeze(1)
 
 
-class _FlatStore(nn.Module):
+class _FlatStore(MovesTensorAttrs, nn.Module):
     """A flat float buffer ``store`` of tables, with its same-step update rule.
 
     ``store`` holds ``P * stride`` entries (learner ``p``'s block first at ``p * stride``)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
@@ -28,7 +29,7 @@ from hrl_torch.tables import TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
 
-class Learner(nn.Module):
+class Learner(MovesTensorAttrs, nn.Module):
     """Base class: a population of ``P`` independent learners over one task graph.
 
     ``uses``: the optional transition keys ``update`` reads
