@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 
@@ -83,3 +85,45 @@ class KeepsHostCopies(MovesTensorAttrs):
         """Buffer ``name`` on the CPU, as built (construction reads it, not the device's)."""
         buf = self.get_buffer(name)
         return buf if buf.device.type == "cpu" else self._host[name]
+
+
+class DeferredCheck:
+    """A per-step check latched on the device; ``error()`` builds its exception afterwards.
+
+    ``record(bad [B], **fields)`` keeps, per row, the fields of the first step the row failed
+    (one ``where`` per field and an in-place or: no read, fixed shapes).
+
+    Args:
+        describe: ``describe(row, saved)`` -> the exception of the lowest failing row, given
+            the fields ``saved`` (host tensors) of its first failing step.
+        on_read: called after each read of the flags (a check can refresh what it knows).
+    """
+
+    def __init__(self, describe: Callable[[int, dict], Exception], on_read=None) -> None:
+        self.describe, self.on_read = describe, on_read
+        self.bad: torch.Tensor | None = None  # [B] bool: rows that failed so far
+        self.saved: dict[str, torch.Tensor] = {}
+        self._views: dict[int, torch.Tensor] = {}  # ``bad`` viewed for a field's rank
+
+    def record(self, bad: torch.Tensor, **fields: torch.Tensor) -> None:
+        """Latch the rows ``bad [B]`` and, for rows failing for the first time, ``fields``."""
+        if self.bad is None:
+            self.bad = bad.clone()
+            self.saved = {k: v.clone() for k, v in fields.items()}
+            return
+        for key, value in fields.items():
+            kept = self._views.get(value.dim())
+            if kept is None:  # (a view of ``bad``, updated in place: made once)
+                kept = self._views[value.dim()] = self.bad.view(-1, *[1] * (value.dim() - 1))
+            self.saved[key] = torch.where(kept, self.saved[key], value)
+        self.bad.logical_or_(bad)
+
+    def error(self) -> Exception | None:
+        """The latched failure's exception, or ``None`` (reads the device)."""
+        failed = self.bad is not None and bool(self.bad.any())
+        if self.on_read is not None:
+            self.on_read()
+        if not failed:
+            return None
+        row = int(self.bad.nonzero()[0])
+        return self.describe(row, {k: v.cpu() for k, v in self.saved.items()})

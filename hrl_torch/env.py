@@ -22,7 +22,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from hrl_torch.devices import apply_to_tensors, holds_tensor, move_attributes
+from hrl_torch.devices import DeferredCheck, apply_to_tensors, holds_tensor, move_attributes
 from hrl_torch.rng import BatchRNG
 
 
@@ -58,6 +58,8 @@ class BatchedEnv:
     observation_bounds: dict[str, tuple[list[float], list[float]]] = {}
     #: ``(low, high)`` of a continuous action ``[B, *shape]`` (``n_actions`` is then ``None``)
     action_bounds: tuple[list[float], list[float]] | None = None
+    #: the action check, when deferred (``defer_checks``)
+    deferred_action: DeferredCheck | None = None
 
     def __init__(
         self,
@@ -129,6 +131,10 @@ class BatchedEnv:
             raise ValueError(
                 f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
             )
+        if self.deferred_action is not None:  # (no read: raised at the trainer's next read)
+            inside = action.clamp(0, self.n_actions - 1)  # (a bad row's action: ignored)
+            self.deferred_action.record((inside != action) & ~self.done, action=action)
+            return inside
         low, high = torch.stack(torch.aminmax(action)).tolist()
         if low >= 0 and high < self.n_actions:
             return action
@@ -140,6 +146,17 @@ class BatchedEnv:
                 f"(env row {row})"
             )
         return torch.where(bad, torch.zeros_like(action), action)
+
+    def defer_checks(self) -> DeferredCheck:
+        """Check actions without a device read from now on (``hrl_torch.deferred``)."""
+        n = self.n_actions
+
+        def describe(row: int, saved: dict) -> Exception:
+            action = int(saved["action"][row])
+            return ValueError(f"action {action} outside the action space [0, {n}) (env row {row})")
+
+        self.deferred_action = DeferredCheck(describe)
+        return self.deferred_action
 
     def _zero(self) -> torch.Tensor:
         """A 0-d zero on the env's device (kept)."""

@@ -97,7 +97,9 @@ class Learner(MovesTensorAttrs, nn.Module):
         """
         cached = self.__dict__.get("_distinct")
         if cached is None or cached[0] is not learner:
-            cached = (learner, learner.unique().numel() == learner.numel())
+            known = getattr(learner, "distinct_rows", None)  # (the executor's, read on the CPU)
+            distinct = learner.unique().numel() == learner.numel() if known is None else known
+            cached = (learner, distinct)
             self.__dict__["_distinct"] = cached
         return cached[1]
 
@@ -297,8 +299,9 @@ class ValuePolicy:
         self.all_at_once = learner.all_instances_at_once
         self.draws = LevelDraws(rng, g, self.width)
         # every chooser reads its level's block
-        slots = torch.arange(self.width, device=g.chooser_depth.device)
-        self._chooser_columns = g.chooser_depth[:, None] * self.width + slots
+        cols = g.host("chooser_depth")[:, None] * self.width + torch.arange(self.width)
+        self._chooser_columns = cols.to(g.chooser_depth.device)
+        rng.know_columns(self._chooser_columns, cols.reshape(-1).tolist())  # (no read per block)
 
     def new_step(self) -> None:
         """Take this step's draw (read by the choices)."""

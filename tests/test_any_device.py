@@ -1,0 +1,135 @@
+"""Any device, no host reads (docs/design.md, "Any device"; issue 27).
+
+``meta`` has CUDA's device rules and no data: a run built for it fails on any tensor left on
+the CPU and on any value read back to the host. Every registered domain x algorithm builds
+there with every tensor there; the configurations driven to no host read in a training step
+run a step there, and ``HostSyncCounter`` guards that they stay at 0.
+"""
+
+import pytest
+import torch
+
+import agents  # noqa: F401  (registers the domains)
+from hrl_torch import registry
+from hrl_torch.deferred import raise_pending
+from hrl_torch.executor import BadStepError
+from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.sync_count import HostSyncCounter, count_train_step
+
+PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
+#: configurations whose training step makes no host read (the counting test guards them)
+NO_HOST_READ = [("taxi", "maxq-q"), ("small-agv", "har")]
+
+
+def _options(device: str = "cpu") -> RunOptions:
+    return RunOptions(
+        seeds=[0, 1],
+        envs_per_learner=2,
+        progress=False,
+        tensorboard=False,
+        device=device,
+        eval_episodes=0,
+        check_env=False,
+    )
+
+
+def _tensors(obj, path: str, out: list, seen: set, depth: int = 0) -> None:
+    """Every tensor reachable from ``obj`` (modules, project objects, containers)."""
+    if id(obj) in seen or depth > 8:
+        return
+    seen.add(id(obj))
+    if isinstance(obj, torch.Tensor):
+        out.append((path, obj.device))
+        return
+    if isinstance(obj, torch.nn.Module):
+        named = list(obj.named_buffers()) + list(obj.named_parameters())
+        out.extend((f"{path}.{n}", t.device) for n, t in named)
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, (list, tuple)):
+        items = enumerate(obj)
+    elif hasattr(obj, "__dict__") and type(obj).__module__.split(".")[0] in (
+        "hrl_torch",
+        "envs",
+        "agents",
+    ):
+        items = [(k, v) for k, v in vars(obj).items() if k != "_host"]  # (host copies)
+    else:
+        return
+    for key, value in items:
+        _tensors(value, f"{path}.{key}", out, seen, depth + 1)
+
+
+@pytest.mark.parametrize(("domain", "algo"), PAIRS)
+def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    found: list = []
+    _tensors(trainer, "trainer", found, set())
+    assert found, "no tensor found: the walk is broken"
+    assert [p for p, dev in found if dev.type != "meta"] == []
+
+
+@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+def test_a_training_step_runs_on_meta(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    for _ in range(3):
+        trainer.train_step()
+    assert trainer.env.state.device.type == "meta" or trainer.env.device.type == "meta"
+
+
+@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+def test_a_training_step_reads_nothing_back(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options())
+    # from the first step on, past a block of random draws (BatchRNG.AHEAD = 64)
+    counter = count_train_step(trainer, 70, stacks=True)
+    assert counter.total == 0, dict(counter.where)
+
+
+def test_the_counter_counts_each_kind_of_host_read():
+    x = torch.arange(6.0)
+    with HostSyncCounter() as counter:
+        x.sum().item()
+        bool(x.any())
+        (x > 2).nonzero()
+        x[x > 2]
+        x.tolist()
+        x.unique()
+        torch.zeros(3).add_(1)  # (no read)
+    assert dict(counter.counts) == {
+        "item": 2,
+        "nonzero": 1,
+        "bool-index": 1,
+        "tolist": 1,
+        "unique": 1,
+    }
+
+
+def test_a_nan_reward_is_raised_at_the_next_read_with_the_immediate_message():
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", _options())
+    step_all = trainer.env._step_all
+
+    def nan_in_row_1(action):
+        reward, duration, terminated = step_all(action)
+        return reward.index_fill(0, torch.tensor([1]), float("nan")), duration, terminated
+
+    trainer.train_step()
+    trainer.env._step_all = nan_in_row_1
+    trainer.train_step()  # (deferred: no raise inside the step)
+    trainer.env._step_all = step_all
+    trainer.train_step()
+    with pytest.raises(BadStepError, match=r"env row 1 returned reward nan and duration"):
+        raise_pending(trainer.deferred)
+
+
+def test_an_action_outside_the_space_is_raised_by_train_with_the_immediate_message():
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", _options())
+    step = trainer.env.step
+
+    def bad_action_in_row_2(action):
+        return step(action.index_fill(0, torch.tensor([2]), 9))
+
+    trainer.env.step = bad_action_in_row_2
+    with pytest.raises(
+        ValueError, match=r"action 9 outside the action space \[0, 6\) \(env row 2\)"
+    ):
+        trainer.train(steps=4)
