@@ -67,10 +67,19 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
             longest = int(executor.stack.inv_steps[:, 1:].amax())
             executor._guard_quiet = max(limit - longest - 1, 0)
 
+    def out_of_range(row: int, saved: dict) -> Exception:
+        col = int(saved["cols"][row].nonzero()[0])
+        return GraphError(
+            f"{g.names[col]!r}.abstract returned {int(saved['abstract'][row, col])}, outside "
+            f"[0, {g.nodes[col].n_states}) (env row {row})"
+        )
+
+    g.deferred_ranges = DeferredCheck(out_of_range)
     executor.deferred_bad = DeferredCheck(bad_step)
     executor.deferred_stuck = DeferredCheck(stuck)
     executor.deferred_timeout = DeferredCheck(timeout, on_read=quiet_again)
     checks = [executor.deferred_bad, executor.deferred_stuck, executor.deferred_timeout]
+    checks.append(g.deferred_ranges)
     # a new executor's invocations have run no step: none reaches the guard for limit - 1
     executor._guard_quiet = max(executor._guard_quiet, limit - 1)
     plain = isinstance(env, BatchedEnv) and type(env)._checked is BatchedEnv._checked

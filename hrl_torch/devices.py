@@ -105,6 +105,10 @@ class DeferredCheck:
         self.saved: dict[str, torch.Tensor] = {}
         self._views: dict[int, torch.Tensor] = {}  # ``bad`` viewed for a field's rank
 
+    def takes(self, bad: torch.Tensor) -> bool:
+        """Whether ``bad`` has the rows of the latched ones (another batch: check at once)."""
+        return self.bad is None or self.bad.shape[0] == bad.shape[0]
+
     def record(self, bad: torch.Tensor, **fields: torch.Tensor) -> None:
         """Latch the rows ``bad [B]`` and, for rows failing for the first time, ``fields``."""
         if self.bad is None:

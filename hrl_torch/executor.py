@@ -450,7 +450,8 @@ class HierarchicalExecutor:
             self._guard_quiet -= 1
             return None
         if self.deferred_timeout is not None and cfg.on_timeout == "raise":  # (no read)
-            over = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
+            limit = cfg.max_subtask_steps
+            over = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= limit)
             self.deferred_timeout.record(over.any(1), over=over, node=node, inst=f["inst"])
             return None
         longest = f["inv_steps"][:, 1:].amax().tolist() if self.depth > 1 else 0

@@ -246,6 +246,10 @@ class TaskGraph(KeepsHostCopies, nn.Module):
     def _check_abstract_ranges(self, abstract: torch.Tensor) -> None:
         """Every abstract state inside its node's ``[0, n_states)``, else a ``GraphError``."""
         bad = (abstract < 0) | (abstract >= self.node_n_states)
+        deferred = self.__dict__.get("deferred_ranges")  # (hrl_torch.deferred: no read)
+        if deferred is not None and deferred.takes(bad):
+            deferred.record(bad.any(1), cols=bad, abstract=abstract)
+            return
         if bool(bad.any()):
             row, col = (int(v) for v in bad.nonzero()[0])
             raise GraphError(

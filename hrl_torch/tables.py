@@ -16,7 +16,7 @@ from torch import nn
 
 from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
-from hrl_torch.ops import lookup
+from hrl_torch.ops import group_of_rows, lookup
 
 
 class TableLayout(MovesTensorAttrs, nn.Module):
@@ -135,7 +135,7 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         ones (flat learners on big state spaces) group the rows with ``unique`` instead.
         """
         if self.store.numel() > self.SCRATCH_LIMIT:
-            _, group = torch.unique(index, return_inverse=True)
+            group = group_of_rows(index)
             sums = torch.zeros_like(weighted).index_add_(1, group, weighted)
             n, total = sums.index_select(1, group)
             return n, total
