@@ -935,7 +935,7 @@ MUTANTS: list[Mutant] = [
         "self.learner.distinct_rows = learner.unique().numel() == learner.numel()",
         "self.learner.distinct_rows = True",
         "rows of one learner take the plain update one after the other (not order-free)",
-        (TABLES, "tests/test_population.py", MAXQ_EXACT),
+        ("tests/test_any_device.py", TABLES, "tests/test_population.py", MAXQ_EXACT),
     ),
     Mutant(
         "plan-per-state-without-learner",

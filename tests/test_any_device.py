@@ -142,3 +142,12 @@ def test_an_action_outside_the_space_is_raised_by_train_with_the_immediate_messa
         ValueError, match=r"action 9 outside the action space \[0, 6\) \(env row 2\)"
     ):
         trainer.train(steps=4)
+
+
+@pytest.mark.parametrize(("envs", "distinct"), [(1, True), (3, False)])
+def test_the_executor_reads_whether_rows_share_a_learner_on_the_cpu(envs, distinct):
+    opts = _options("meta")
+    opts.envs_per_learner = envs
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
+    assert trainer.executor.learner.distinct_rows is distinct
+    assert trainer.learner.rows_distinct(trainer.executor.learner) is distinct
