@@ -82,7 +82,7 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
     checks.append(g.deferred_ranges)
     # a new executor's invocations have run no step: none reaches the guard for limit - 1
     executor._guard_quiet = max(executor._guard_quiet, limit - 1)
-    plain = isinstance(env, BatchedEnv) and type(env)._checked is BatchedEnv._checked
-    if plain and env.n_actions is not None:
+    if isinstance(env, BatchedEnv) and env.n_actions is not None:  # (overrides of the
+        # env's own action check that skip ``BatchedEnv``'s keep checking at once)
         checks.append(env.defer_checks())
     return checks

@@ -18,15 +18,27 @@ from hrl_torch.sync_count import HostSyncCounter, count_train_step
 
 PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
 #: configurations whose training step makes no host read (the counting test guards them)
-NO_HOST_READ = [
-    ("taxi", "maxq-q"),
-    ("small-agv", "har"),
-    *[("taxi", a) for a in ("smdp-q", "q")],
-    *[("small-agv", a) for a in ("hdr", "rar", "maxq-q", "hh", "rvi-q")],
-    *[(d, a) for d in ("agv", "agv-ct") for a in ("har", "rar", "hdr")],
-    *[(d, a) for d in ("four-rooms", "key-door") for a in ("maxq-q", "q")],
-    *[("taxi-fuel", a) for a in ("maxq-q", "q")],
-]
+NO_HOST_READ = list(
+    dict.fromkeys(
+        [  # (the four named configurations first; no pair twice)
+            ("taxi", "maxq-q"),
+            ("small-agv", "har"),
+            ("four-agv", "cooperative"),
+            *[("taxi", a) for a in ("smdp-q", "q")],
+            *[("small-agv", a) for a in ("hdr", "rar", "maxq-q", "hh", "rvi-q")],
+            *[(d, a) for d in ("agv", "agv-ct") for a in ("har", "rar", "hdr")],
+            *[(d, a) for d in ("four-rooms", "key-door") for a in ("maxq-q", "q")],
+            *[("taxi-fuel", a) for a in ("maxq-q", "q")],
+            *[
+                ("four-agv", a)
+                for a in registry.get("four-agv").algos
+                if a not in ("fcfs", "hqf", "nsf")
+            ],
+            *[("trash", a) for a in registry.get("trash").algos],
+            *[("two-taxi", a) for a in registry.get("two-taxi").algos],
+        ]
+    )
+)
 
 
 def _options(device: str = "cpu") -> RunOptions:
@@ -151,3 +163,15 @@ def test_the_executor_reads_whether_rows_share_a_learner_on_the_cpu(envs, distin
     trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
     assert trainer.executor.learner.distinct_rows is distinct
     assert trainer.learner.rows_distinct(trainer.executor.learner) is distinct
+
+
+def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_message():
+    from envs.two_taxi import TwoTaxiEnv
+
+    env = TwoTaxiEnv([0], 2)
+    env.reset()
+    check = env.defer_checks()
+    env.step(torch.tensor([[0, 0], [0, 7]]))  # (no raise inside the step)
+    err = check.error()
+    assert isinstance(err, ValueError)
+    assert str(err) == "action 7 of agent 1 outside the action space [0, 7) (env row 1)"
