@@ -85,6 +85,7 @@ from functools import lru_cache
 import torch
 
 from hrl_torch.env import BatchedEnv
+from hrl_torch.ops import one_hot_mask
 
 # -- layout: (name, forward successor, turn successor or None); index = position in the list
 # fmt: off
@@ -419,7 +420,7 @@ class AGVEnv(BatchedEnv):
             return buffer.gather(1, station.clamp(0, n - 1)[:, None]).squeeze(1)
 
         def one_hot(station: torch.Tensor, when: torch.Tensor) -> torch.Tensor:
-            hot = torch.nn.functional.one_hot(station.clamp(0, n - 1), n).bool()
+            hot = one_hot_mask(station.clamp(0, n - 1), n)
             return (hot & when[:, None]).long()
 
         load = (action == LOAD) & (status == EMPTY)
@@ -459,7 +460,7 @@ class AGVEnv(BatchedEnv):
         for _ in range(self._events_per_step):
             kind, gap, new = self._draw_part_type(), self._draw_gap(), self._draw_assembly()
             hit = self.to_arrival <= 0
-            arrive = torch.nn.functional.one_hot(kind, n).bool() & hit[:, None]
+            arrive = one_hot_mask(kind, n) & hit[:, None]
             lost = lost + (arrive & (self.warehouse > 0)).any(-1).float()
             self.warehouse = torch.where(arrive, 1, self.warehouse)
             self.to_arrival = torch.where(hit, self.to_arrival + gap, self.to_arrival)

@@ -125,10 +125,10 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import torch
-from torch.nn.functional import one_hot
 
 from envs.agv import AGVRewards
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.ops import one_hot_mask
 
 
 # -- layout
@@ -538,7 +538,7 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         def requests(station: torch.Tensor, when: torch.Tensor) -> torch.Tensor:
             """``[B, agents, 4]`` long: agent ``j`` asks station ``station[b, j]``."""
             return (
-                one_hot(station.clamp_min(0), n).bool() & (when & (station >= 0))[..., None]
+                one_hot_mask(station.clamp_min(0), n) & (when & (station >= 0))[..., None]
             ).long()
 
         def served(asks: torch.Tensor, amount: torch.Tensor) -> torch.Tensor:
@@ -607,7 +607,7 @@ class FourAGVEnv(MultiAgentBatchedEnv):
         for _ in range(self._events_per_step):
             kind, gap, new = self._draw_part_type(), self._draw_gap(), self._draw_assembly()
             hit = self.to_arrival <= 0
-            arrive = one_hot(kind, n).bool() & hit[:, None]
+            arrive = one_hot_mask(kind, n) & hit[:, None]
             stored = arrive & (self.warehouse == 0)
             lost = lost + (arrive & ~stored).any(-1).float()
             self.bay_age = torch.where(stored, -self.to_arrival[:, None], self.bay_age)

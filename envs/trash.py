@@ -78,9 +78,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import torch
-from torch.nn.functional import one_hot
 
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.ops import one_hot_mask
 
 MAP = (
     "+---+---+---+---+",
@@ -224,7 +224,7 @@ def step_joint(
     can_here = CAN_AT.to(device)[location]  # [B, n], N_CANS where no can
     full_here = torch.cat([cans, torch.zeros_like(cans[:, :1])], 1).gather(1, can_here)
     tries = (action == PICK) & ~carrying & full_here
-    claims = one_hot(can_here, N_CANS + 1)[..., :N_CANS].bool() & tries[..., None]  # [B, n, K]
+    claims = one_hot_mask(can_here, N_CANS + 1)[..., :N_CANS] & tries[..., None]  # [B, n, K]
     wins = claims & (claims.long().cumsum(1) == 1)  # the lowest-index robot at each can
     picked, emptied = wins.any(2), wins.any(1)
     dumped = (action == PUT) & carrying & (location == DUMP)

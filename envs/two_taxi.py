@@ -99,10 +99,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from torch.nn.functional import one_hot
 
 from envs.taxi import DROPOFF, EAST, MAP, NORTH, PICKUP, SOUTH, STATIONS, WEST
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.ops import one_hot_mask
 
 N_LOCATIONS = 25
 N_STATIONS = 4
@@ -288,7 +288,7 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         empty = self.status == EMPTY
         pickup, putdown = action == PICKUP, action == PUTDOWN
         legal_pickup = pickup & empty & (dest_here != NO_PASSENGER)
-        claims = one_hot(here, N_STATIONS + 1)[..., :N_STATIONS].bool() & legal_pickup[..., None]
+        claims = one_hot_mask(here, N_STATIONS + 1)[..., :N_STATIONS] & legal_pickup[..., None]
         wins = claims & (claims.long().cumsum(1) == 1)  # [B, n, 4]
         picked, taken = wins.any(2), wins.any(1)
         delivered = putdown & ~empty & (here == self.status)
@@ -319,7 +319,7 @@ class TwoTaxiEnv(MultiAgentBatchedEnv):
         if self.arrivals == "grid":
             arrive = u[:, 0] < self.arrival_prob
             station = (u[:, 1] * N_STATIONS).long().clamp_max(N_STATIONS - 1)
-            slot = one_hot(station, N_STATIONS).bool() & arrive[:, None]  # [B, 4]
+            slot = one_hot_mask(station, N_STATIONS) & arrive[:, None]  # [B, 4]
             other = (u[:, 2] * (N_STATIONS - 1)).long().clamp_max(N_STATIONS - 2)[:, None]
         else:  # every station its own Bernoulli process (draws: 4 arrivals, 4 destinations)
             v = self.rng.uniform(2 * N_STATIONS)

@@ -20,7 +20,9 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDict
+from torch import nn
 
+from hrl_torch.devices import DeferredCheck, apply_to_tensors, holds_tensor, move_attributes
 from hrl_torch.rng import BatchRNG
 
 
@@ -56,6 +58,8 @@ class BatchedEnv:
     observation_bounds: dict[str, tuple[list[float], list[float]]] = {}
     #: ``(low, high)`` of a continuous action ``[B, *shape]`` (``n_actions`` is then ``None``)
     action_bounds: tuple[list[float], list[float]] | None = None
+    #: the action check, when deferred (``defer_checks``)
+    deferred_action: DeferredCheck | None = None
 
     def __init__(
         self,
@@ -127,6 +131,10 @@ class BatchedEnv:
             raise ValueError(
                 f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
             )
+        if self.deferred_action is not None:  # (no read: raised at the trainer's next read)
+            inside = action.clamp(0, self.n_actions - 1)  # (a bad row's action: ignored)
+            self.deferred_action.record((inside != action) & ~self.done, action=action)
+            return inside
         low, high = torch.stack(torch.aminmax(action)).tolist()
         if low >= 0 and high < self.n_actions:
             return action
@@ -138,6 +146,17 @@ class BatchedEnv:
                 f"(env row {row})"
             )
         return torch.where(bad, torch.zeros_like(action), action)
+
+    def defer_checks(self) -> DeferredCheck:
+        """Check actions without a device read from now on (``hrl_torch.deferred``)."""
+        n = self.n_actions
+
+        def describe(row: int, saved: dict) -> Exception:
+            action = int(saved["action"][row])
+            return ValueError(f"action {action} outside the action space [0, {n}) (env row {row})")
+
+        self.deferred_action = DeferredCheck(describe)
+        return self.deferred_action
 
     def _zero(self) -> torch.Tensor:
         """A 0-d zero on the env's device (kept)."""
@@ -165,13 +184,12 @@ class BatchedEnv:
         device = torch.device(device)
         if device == self.device:
             return self
+        move = lambda t: t.to(device)  # noqa: E731
         for name, value in vars(self).items():
-            if isinstance(value, torch.Tensor):
-                setattr(self, name, value.to(device))
-            elif isinstance(value, dict) and all(
-                isinstance(v, torch.Tensor) for v in value.values()
-            ):
-                setattr(self, name, {k: v.to(device) for k, v in value.items()})
+            if name != "rng" and holds_tensor(value):
+                setattr(self, name, apply_to_tensors(move, value))
+            if _plain_helper(value):  # (a helper object's tensors: a distribution's support)
+                move_attributes(value, move)
         self.rng = self.rng.to(device)
         self.device = device
         return self
@@ -224,3 +242,13 @@ class BatchedEnv:
                 )
             setattr(self, k, value.to(self.device).clone())
         self.rng.load_state_dict(state["rng"])
+
+
+def _plain_helper(value) -> bool:
+    """A plain object an env keeps (not a module, env, random stream or type)."""
+    owned = type(value).__module__.split(".")[0] in ("envs", "agents", "hrl_torch")
+    return (
+        owned
+        and hasattr(value, "__dict__")
+        and not isinstance(value, (type, nn.Module, BatchRNG, BatchedEnv))
+    )

@@ -91,6 +91,8 @@ class HierarchicalExecutor:
 
     #: transition keys computed only when asked for (``hrl_torch.transitions.OPTIONAL``)
     OPTIONAL = OPTIONAL
+    #: the bad-step and stuck checks when deferred (``hrl_torch.deferred.defer_checks``)
+    deferred_bad = deferred_stuck = deferred_timeout = None
 
     def __init__(
         self,
@@ -112,11 +114,14 @@ class HierarchicalExecutor:
         device = graph.node_children.device
         self.device = device
         long = dict(dtype=torch.long, device=device)
-        if learner is None:
-            learner = torch.arange(batch_size, **long) // (envs_per_learner or batch_size)
+        if learner is None:  # (made on the CPU: n_learners is read before the move)
+            learner = torch.arange(batch_size) // (envs_per_learner or batch_size)
+        # read where the caller made it (the CPU: ``meta`` and CUDA rows need no host read)
+        self.n_learners = int(learner.max()) + 1 if batch_size else 0
         self.learner = learner.to(device)
+        # (read on the CPU too: ``Learner.rows_distinct`` then needs no device read)
+        self.learner.distinct_rows = learner.unique().numel() == learner.numel()
         self.envs_per_learner = envs_per_learner or batch_size
-        self.n_learners = int(self.learner.max()) + 1 if batch_size else 0
         self.depth = graph.max_levels
         self.levels = torch.arange(self.depth, **long)
         self.rows = torch.arange(batch_size, **long)
@@ -222,6 +227,7 @@ class HierarchicalExecutor:
     def reset(self) -> None:
         """Empty every stack (all rows start at the root on the next ``act``)."""
         self.stack = self.stack.cleared()
+        self._guard_quiet = self.config.max_subtask_steps - 1  # (no invocation has run yet)
 
     # ------------------------------------------------------------------ acting
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
@@ -294,7 +300,9 @@ class HierarchicalExecutor:
         f["top"] = torch.take(g.inst_depth_1, top1)
         if not g.never_stuck:
             stuck = chose & ~ctx.available.any(-1).gather(1, node)
-            if stuck.any().tolist():
+            if self.deferred_stuck is not None:  # (hrl_torch.deferred: no read)
+                self.deferred_stuck.record(stuck.any(1), stuck=stuck, node=node)
+            elif stuck.any().tolist():
                 _raise_stuck(g, stuck, node)
         f["child"] = torch.where(kept, f["child"], g.path_child_1.index_select(0, top1))
         if own_greedy is not None:
@@ -397,6 +405,10 @@ class HierarchicalExecutor:
         """
         reward, tau = step["reward"], step["duration"]
         check = (reward + tau) * 0 + tau  # NaN for inf/NaN in either, < 0 for d < 0
+        if self.deferred_bad is not None and self.config.on_bad_step == "raise":
+            bad = ~(check >= 0)  # (hrl_torch.deferred: no read)
+            self.deferred_bad.record(bad, reward=reward, tau=tau, top=f["top"], inst=f["inst"])
+            return step, None
         if check.numel() == 0 or check.amin().tolist() >= 0:  # (False for a NaN amin)
             return step, None
         ok = check >= 0
@@ -447,6 +459,11 @@ class HierarchicalExecutor:
         if self._guard_quiet > 0:
             self._guard_quiet -= 1
             return None
+        if self.deferred_timeout is not None and cfg.on_timeout == "raise":  # (no read)
+            limit = cfg.max_subtask_steps
+            over = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= limit)
+            self.deferred_timeout.record(over.any(1), over=over, node=node, inst=f["inst"])
+            return None
         longest = f["inv_steps"][:, 1:].amax().tolist() if self.depth > 1 else 0
         if longest < cfg.max_subtask_steps:
             self._guard_quiet = cfg.max_subtask_steps - longest - 1
@@ -493,10 +510,9 @@ class HierarchicalExecutor:
 
 def _memory_feature_depth(graph: TaskGraph) -> int:
     """The deepest level where a node with invocation memory and features runs (-1: none)."""
-    device = graph.inst_node.device
-    nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long, device=device)
-    memory_inst = torch.isin(graph.inst_node, nodes)
-    return int(graph.inst_depth[memory_inst].max()) if memory_inst.any() else -1
+    nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long)
+    memory_inst = torch.isin(graph.host("inst_node"), nodes)  # (on the CPU)
+    return int(graph.host("inst_depth")[memory_inst].max()) if memory_inst.any() else -1
 
 
 def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

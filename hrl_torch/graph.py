@@ -18,6 +18,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from hrl_torch.devices import KeepsHostCopies
 from hrl_torch.graph_compile import compile_instances, compile_nodes, validate
 from hrl_torch.ops import columns, lookup
 from hrl_torch.subtask import (  # noqa: F401  (Subtask, Primitive, GraphError: re-exported)
@@ -57,7 +58,7 @@ class StepContext:
     table_row: torch.Tensor | None = None
 
 
-class TaskGraph(nn.Module):
+class TaskGraph(KeepsHostCopies, nn.Module):
     """A validated task DAG and its unrolled instance tree.
 
     Args:
@@ -245,6 +246,10 @@ class TaskGraph(nn.Module):
     def _check_abstract_ranges(self, abstract: torch.Tensor) -> None:
         """Every abstract state inside its node's ``[0, n_states)``, else a ``GraphError``."""
         bad = (abstract < 0) | (abstract >= self.node_n_states)
+        deferred = self.__dict__.get("deferred_ranges")  # (hrl_torch.deferred: no read)
+        if deferred is not None and deferred.takes(bad):
+            deferred.record(bad.any(1), cols=bad, abstract=abstract)
+            return
         if bool(bad.any()):
             row, col = (int(v) for v in bad.nonzero()[0])
             raise GraphError(

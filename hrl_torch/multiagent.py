@@ -219,7 +219,7 @@ def cooperation_levels(graph: TaskGraph, cooperation: Cooperation, n_agents: int
         depths = {
             int(d)
             for n in names
-            for d in graph.inst_depth[graph.inst_node == graph.index[n]].tolist()
+            for d in graph.host("inst_depth")[graph.host("inst_node") == graph.index[n]].tolist()
         }
         if len(depths) != 1:
             raise GraphError(f"cooperation level {k}: its subtasks sit at depths {sorted(depths)}")
@@ -471,7 +471,7 @@ def _table_sets_of_rows(
     b = rng.batch_size
     if b % n:
         raise ValueError(f"{b} agent rows are not a multiple of {n} agents")
-    row = torch.arange(b, device=rng.device)
+    row = torch.arange(b)  # (on the CPU: the executor reads it, then moves it)
     seed = row // (envs_per_learner * n)
     first = first_table or 0
     rows = first + (seed if shared_tables else seed * n + row % n)

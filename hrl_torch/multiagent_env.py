@@ -38,6 +38,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.devices import DeferredCheck
 from hrl_torch.env import BatchedEnv
 
 
@@ -146,6 +147,10 @@ class MultiAgentBatchedEnv(BatchedEnv):
             raise ValueError(f"action must have shape {list(shape)}, got {tuple(action.shape)}")
         bad = (action < 0) | (action >= self.n_actions)
         live = self.acting & ~self.done[:, None]
+        if self.deferred_action is not None:  # (no read: hrl_torch.deferred)
+            live_bad = bad & live
+            self.deferred_action.record(live_bad.any(1), action=action, agents=live_bad)
+            return torch.where(bad, torch.zeros_like(action), action)
         if bool((bad & live).any()):
             row, agent = (int(v) for v in (bad & live).nonzero()[0])
             raise ValueError(
@@ -153,6 +158,21 @@ class MultiAgentBatchedEnv(BatchedEnv):
                 f"[0, {self.n_actions}) (env row {row})"
             )
         return torch.where(bad, torch.zeros_like(action), action)
+
+    def defer_checks(self) -> DeferredCheck:
+        """Check actions without a device read from now on (``hrl_torch.deferred``)."""
+        n = self.n_actions
+
+        def describe(row: int, saved: dict) -> Exception:
+            agent = int(saved["agents"][row].nonzero()[0])
+            action = int(saved["action"][row, agent])
+            return ValueError(
+                f"action {action} of agent {agent} outside the action space [0, {n}) "
+                f"(env row {row})"
+            )
+
+        self.deferred_action = DeferredCheck(describe)
+        return self.deferred_action
 
     def _output(
         self, reward, duration, terminated, truncated, is_init, agent_time, agent_reward=None

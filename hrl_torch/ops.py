@@ -115,3 +115,23 @@ def add_at(table: torch.Tensor, index: tuple[torch.Tensor, ...], values: torch.T
         flat = flat + index[k] * table.stride(k)
     flat, values = torch.broadcast_tensors(flat, values)
     table.view(-1).index_add_(0, flat.reshape(-1), values.reshape(-1))
+
+
+def one_hot_mask(index: torch.Tensor, n: int) -> torch.Tensor:
+    """``one_hot(index, n).bool()`` with no host read (``one_hot`` reads the range back).
+
+    An index outside ``[0, n)`` gives an all-False row instead of an error.
+    """
+    return index[..., None] == torch.arange(n, device=index.device)
+
+
+def group_of_rows(index: torch.Tensor) -> torch.Tensor:
+    """``unique(index, return_inverse=True)[1]`` with fixed shapes and no host read.
+
+    Each row's rank among the distinct values (by sorting: a new group where the sorted
+    value changes), what ``unique`` returns as the inverse.
+    """
+    value, order = index.sort()
+    starts = torch.ones_like(value, dtype=torch.long)
+    starts[1:] = value[1:] != value[:-1]
+    return torch.empty_like(order).scatter_(0, order, starts.cumsum(0) - 1)

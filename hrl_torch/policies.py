@@ -25,6 +25,7 @@ import torch
 from hrl_torch.exploration import masked_argmax
 from hrl_torch.graph import GraphError, TaskGraph
 from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput
+from hrl_torch.ops import one_hot_mask
 from hrl_torch.tiles import TileCoder
 
 # -- tabular softmax
@@ -65,7 +66,7 @@ def softmax_log_prob(probs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
 
 def softmax_score(probs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
     """``grad_theta[s, :] mu(a|s) / mu(a|s) = onehot(a) - mu(.|s)``: ``[B, A]``."""
-    onehot = torch.nn.functional.one_hot(action, probs.shape[-1]).to(probs.dtype)
+    onehot = one_hot_mask(action, probs.shape[-1]).to(probs.dtype)
     return onehot - probs
 
 

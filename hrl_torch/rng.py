@@ -111,6 +111,15 @@ class BatchRNG:
         )
         self.counter = 0
         self._ahead: dict = {}  # kind -> (first draw, its draws onward, the columns)
+        self._known: dict = {}  # id(columns) -> (columns, their values as a list)
+
+    def know_columns(self, columns: torch.Tensor, values: list[int]) -> None:
+        """``columns``'s values (as built, on the host): drawing them reads no device."""
+        self._known[id(columns)] = (columns, values)
+
+    def _column_list(self, columns: torch.Tensor) -> list[int]:
+        known = self._known.get(id(columns))
+        return known[1] if known is not None else columns.reshape(-1).tolist()
 
     @property
     def batch_size(self) -> int:
@@ -168,13 +177,14 @@ class BatchRNG:
 
     def _block(self, extra: int, first: int, columns=None) -> torch.Tensor:
         """Uniforms of the draws from ``first`` on: ``[k, B, ...]`` (``uniform``'s shapes)."""
-        needed = None if columns is None else sorted(set(columns.reshape(-1).tolist()))
+        listed = None if columns is None else self._column_list(columns)
+        needed = None if columns is None else sorted(set(listed))
         per_draw = self.batch_size * max(extra if needed is None else len(needed), 1)
         k = max(1, min(self.AHEAD, self.AHEAD_ELEMENTS // max(per_draw, 1)))
         u = _to_uniform(self._bits(extra, first, k, needed))
         if needed is None:
             return u
-        where = torch.tensor([needed.index(c) for c in columns.reshape(-1).tolist()])
+        where = torch.tensor([needed.index(c) for c in listed])
         return u.index_select(-1, where.to(u.device)).view(*u.shape[:2], *columns.shape)
 
     def uniform_rows(
@@ -186,7 +196,7 @@ class BatchRNG:
         computing only those numbers (for large batches of which few rows need a draw).
         """
         row_key = self._row_key.index_select(0, rows)
-        bits = self._bits(extra, counter, 1, columns.reshape(-1).tolist(), row_key)
+        bits = self._bits(extra, counter, 1, self._column_list(columns), row_key)
         return _to_uniform(bits).view(rows.shape[0], *columns.shape)
 
     def reserve(self, n: int) -> int:
@@ -266,7 +276,12 @@ class LevelDraws:
     def __init__(self, rng: BatchRNG, graph, per_level: int) -> None:
         self.rng = rng
         self.width = graph.max_levels * per_level  # of the whole draw
-        self.levels = choosing_levels(graph, per_level)  # [levels - 1, per_level]
+        levels = choosing_levels(graph, per_level)  # [levels - 1, per_level] (on the CPU)
+        self.levels = levels.to(rng.device)
+        self._by_level = list(self.levels)  # (fixed views: the rng knows their values)
+        rng.know_columns(self.levels, levels.reshape(-1).tolist())
+        for block, values in zip(self._by_level, levels.tolist(), strict=True):
+            rng.know_columns(block, values)
         self.counter: int | None = None
 
     def new_step(self) -> None:
@@ -283,4 +298,4 @@ class LevelDraws:
 
     def level_rows(self, level: int, rows: torch.Tensor) -> torch.Tensor:
         """The block of ``level`` of the batch rows ``rows [R]`` only ``[R, per_level]``."""
-        return self.rng.uniform_rows(self.width, self.counter, rows, self.levels[level])
+        return self.rng.uniform_rows(self.width, self.counter, rows, self._by_level[level])

@@ -91,7 +91,7 @@ class TaskStack:
         k = max(score_width, 1)
         return cls(
             inst=torch.full((b, d), -1, dtype=long, device=dev),
-            node=torch.full((b, d), int(graph.inst_node[0]), dtype=long, device=dev),
+            node=torch.full((b, d), graph.root, dtype=long, device=dev),  # (instance 0: the root)
             child=zeros(d, dtype=long),
             start_state=zeros(d, dtype=long),
             steps=zeros(d, dtype=long),

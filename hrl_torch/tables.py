@@ -14,11 +14,12 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
-from hrl_torch.ops import lookup
+from hrl_torch.ops import group_of_rows, lookup
 
 
-class TableLayout(nn.Module):
+class TableLayout(MovesTensorAttrs, nn.Module):
     """Table nodes of a learner over a task graph.
 
     Args:
@@ -66,7 +67,7 @@ class TableLayout(nn.Module):
         return self.table_is_primitive.nonzero().squeeze(1)
 
 
-class _FlatStore(nn.Module):
+class _FlatStore(MovesTensorAttrs, nn.Module):
     """A flat float buffer ``store`` of tables, with its same-step update rule.
 
     ``store`` holds ``P * stride`` entries (learner ``p``'s block first at ``p * stride``)
@@ -134,7 +135,7 @@ class _FlatStore(nn.Module):
         ones (flat learners on big state spaces) group the rows with ``unique`` instead.
         """
         if self.store.numel() > self.SCRATCH_LIMIT:
-            _, group = torch.unique(index, return_inverse=True)
+            group = group_of_rows(index)
             sums = torch.zeros_like(weighted).index_add_(1, group, weighted)
             n, total = sums.index_select(1, group)
             return n, total

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from hrl_torch.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.checkpoint import Checkpointer
+from hrl_torch.deferred import defer_checks, raise_pending
 from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Exploration, Greedy
@@ -84,6 +85,7 @@ class Trainer:
         self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()
         self.source = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
+        self.deferred = defer_checks(env, self.agent.executor)  # (docs/bad-input.md)
         skip = self.executor_config.on_bad_step == "skip"
         self.episodes = EpisodeTracker(
             env.batch_size, self.P, self.E, self.config.success_key, env.device, skip
@@ -173,6 +175,7 @@ class Trainer:
                 bar.update(self.E)
                 self._after_step(cfg, run_dir)
             bar.close()
+            raise_pending(self.deferred)
             if self.leaf_monitor is not None:
                 self.leaf_monitor.warn()
             if self.eval_env is not None and stop.signal is None:
@@ -190,16 +193,22 @@ class Trainer:
         return TrainResult.of(*args)
 
     def _after_step(self, cfg: TrainConfig, run_dir) -> None:
-        """Log, evaluate and checkpoint when their intervals are due."""
-        if self.step >= self.counters.next["log"]:
+        """Log, evaluate and checkpoint when their intervals are due (deferred checks first)."""
+        nxt = self.counters.next
+        log = self.step >= nxt["log"]
+        ev = self.eval_env is not None and cfg.eval_every and self.step >= nxt["eval"]
+        ckpt = run_dir is not None and cfg.checkpoint_every and self.step >= nxt["ckpt"]
+        if log or ev or ckpt:
+            raise_pending(self.deferred)  # (a due interval reads the device anyway)
+        if log:
             self._log_training()
-            self.counters.next["log"] = self.step + cfg.log_every
-        if self.eval_env is not None and cfg.eval_every and self.step >= self.counters.next["eval"]:
+            nxt["log"] = self.step + cfg.log_every
+        if ev:
             self._evaluate_and_log()
-            self.counters.next["eval"] = self.step + cfg.eval_every
-        if run_dir is not None and cfg.checkpoint_every and self.step >= self.counters.next["ckpt"]:
+            nxt["eval"] = self.step + cfg.eval_every
+        if ckpt:
             self.save(f"{run_dir}/checkpoint.pt")
-            self.counters.next["ckpt"] = self.step + cfg.checkpoint_every
+            nxt["ckpt"] = self.step + cfg.checkpoint_every
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:

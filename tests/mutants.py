@@ -288,7 +288,7 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "rvi-sum-counts-duplicates",
         "hrl_torch/learners/rvi_q.py",
-        "self.q_sum.index_add_(0, learner, (change / counts[inverse]).double())",
+        "self.q_sum.index_add_(0, learner, (change / counts.index_select(0, group)).double())",
         "self.q_sum.index_add_(0, learner, change.double())",
         "RVI-Q's running table sum counts an entry hit by several rows several times",
         (AVERAGE,),
@@ -655,8 +655,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "value-policy-root-uniforms",
         "hrl_torch/learners/base.py",
-        "self._chooser_columns = g.chooser_depth[:, None] * self.width + slots",
-        "self._chooser_columns = 0 * g.chooser_depth[:, None] + slots",
+        'cols = g.host("chooser_depth")[:, None] * self.width + torch.arange(self.width)',
+        'cols = 0 * g.host("chooser_depth")[:, None] + torch.arange(self.width)',
         "the all-instances choice reads every level's choice from the root level's uniforms",
         ("tests/test_executor.py",),
     ),
@@ -931,11 +931,11 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-rows-always-distinct",
-        "hrl_torch/learners/base.py",
-        "cached = (learner, learner.unique().numel() == learner.numel())",
-        "cached = (learner, True)",
+        "hrl_torch/executor.py",
+        "self.learner.distinct_rows = learner.unique().numel() == learner.numel()",
+        "self.learner.distinct_rows = True",
         "rows of one learner take the plain update one after the other (not order-free)",
-        (TABLES, "tests/test_population.py", MAXQ_EXACT),
+        ("tests/test_any_device.py", TABLES, "tests/test_population.py", MAXQ_EXACT),
     ),
     Mutant(
         "plan-per-state-without-learner",

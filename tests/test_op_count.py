@@ -18,10 +18,11 @@ from hrl_torch.experiment import RunOptions, build_trainer
 # per learner no two rows share a table, so the tables take the plain update (fewer ops);
 # the x8 cases guard the grouped update of rows that may hit one entry.
 BUDGETS = {
-    ("taxi", "maxq-q", 1): 200,  # 196 (509 at 1ce5127, 862 before the core rewrite)
-    ("taxi", "maxq-q", 8): 215,  # 209
-    ("small-agv", "har", 1): 345,  # 332 (647 at 1ce5127)
-    ("small-agv", "har", 8): 355,  # 343
+    # (+10: the deferred checks of a step with no host read, hrl_torch.deferred: 195 before)
+    ("taxi", "maxq-q", 1): 215,  # 205 (509 at 1ce5127, 862 before the core rewrite)
+    ("taxi", "maxq-q", 8): 229,  # 218
+    ("small-agv", "har", 1): 360,  # 344 (647 at 1ce5127)
+    ("small-agv", "har", 8): 372,  # 355
     ("ship-steering", "hybrid", 1): 1_120,  # 1,070 (1,568 at 1ce5127)
 }
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
@@ -28,7 +29,7 @@ from hrl_torch.tables import TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
 
-class Learner(nn.Module):
+class Learner(MovesTensorAttrs, nn.Module):
     """Base class: a population of ``P`` independent learners over one task graph.
 
     ``uses``: the optional transition keys ``update`` reads
@@ -96,7 +97,9 @@ class Learner(nn.Module):
         """
         cached = self.__dict__.get("_distinct")
         if cached is None or cached[0] is not learner:
-            cached = (learner, learner.unique().numel() == learner.numel())
+            known = getattr(learner, "distinct_rows", None)  # (the executor's, read on the CPU)
+            distinct = learner.unique().numel() == learner.numel() if known is None else known
+            cached = (learner, distinct)
             self.__dict__["_distinct"] = cached
         return cached[1]
 
@@ -296,8 +299,9 @@ class ValuePolicy:
         self.all_at_once = learner.all_instances_at_once
         self.draws = LevelDraws(rng, g, self.width)
         # every chooser reads its level's block
-        slots = torch.arange(self.width, device=g.chooser_depth.device)
-        self._chooser_columns = g.chooser_depth[:, None] * self.width + slots
+        cols = g.host("chooser_depth")[:, None] * self.width + torch.arange(self.width)
+        self._chooser_columns = cols.to(g.chooser_depth.device)
+        rng.know_columns(self._chooser_columns, cols.reshape(-1).tolist())  # (no read per block)
 
     def new_step(self) -> None:
         """Take this step's draw (read by the choices)."""

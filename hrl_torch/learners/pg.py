@@ -189,7 +189,7 @@ class HPGRLLearner(Learner):
             if group not in names:
                 names.append(group)
             node_group[k] = names.index(group)
-        self.group_names = names
+        self.group_names, self._pg_nodes = names, {g.index[n] for n in groups}  # (host copy)
         self.heads = nn.ModuleDict({n: heads[n] for n in names})
         shape = torch.tensor([[heads[n].n_states, heads[n].n_cols] for n in names]).view(-1, 2)
         self.params = TableBank(self.n_learners, shape[:, 0], shape[:, 1], self.config.init)
@@ -360,7 +360,7 @@ class HPGRLLearner(Learner):
         Training samples from the policies whatever ``exploration`` is (PG nodes explore by
         their own randomness); ``evaluate=True`` acts on their modes and records nothing.
         """
-        if bool((self.node_group[self.graph.subtasks()] < 0).any()):
+        if set(self.graph.subtasks()) - self._pg_nodes:
             raise GraphError("not every subtask is a PG node: use hrl_torch.hybrid.HybridLearner")
         return PGPolicy(self, rng, greedy=evaluate)
 

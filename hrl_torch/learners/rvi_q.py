@@ -30,6 +30,7 @@ from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
+from hrl_torch.ops import group_of_rows
 
 
 class RVIQLearner(TabularLearner):
@@ -115,5 +116,6 @@ class RVIQLearner(TabularLearner):
         # keep sum(Q) exact: every updated entry's change once, however many rows hit it
         change = self.Q.read(idx, valid) - old
         safe = torch.where(valid, idx, -1)
-        _, inverse, counts = torch.unique(safe, return_inverse=True, return_counts=True)
-        self.q_sum.index_add_(0, learner, (change / counts[inverse]).double())
+        group = group_of_rows(safe)  # (``unique``'s inverse with no host read)
+        counts = torch.zeros_like(change).index_add_(0, group, torch.ones_like(change))
+        self.q_sum.index_add_(0, learner, (change / counts.index_select(0, group)).double())

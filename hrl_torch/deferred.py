@@ -1,0 +1,88 @@
+"""Checks of a training step that read the device later (docs/bad-input.md, "When checks fire").
+
+A step with no host read cannot raise the moment an env returns a NaN reward or is handed an
+action outside its space. With deferral on (the trainer turns it on), the env and the executor
+record each such check in a ``DeferredCheck``: a flag on the device and the first failing
+step's rows, latched with ``torch.where`` (no read). ``raise_pending`` reads the flags and
+raises the first check's error, with the same message an immediate check gives, at the
+trainer's next host read: its log interval, an evaluation, a checkpoint, the end of ``train``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from hrl_torch.devices import DeferredCheck
+from hrl_torch.env import BatchedEnv
+from hrl_torch.executor import BadStepError, HierarchicalExecutor, SubtaskTimeoutError
+from hrl_torch.graph import GraphError
+
+__all__ = ["DeferredCheck", "defer_checks", "raise_pending"]
+
+
+def raise_pending(checks: Iterable[DeferredCheck | None]) -> None:
+    """Raise the first latched failure among ``checks`` (one read per check)."""
+    for check in checks:
+        err = None if check is None else check.error()
+        if err is not None:
+            raise err
+
+
+def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
+    """Turn on deferral of ``env``'s action check and ``executor``'s bad-step and stuck checks.
+
+    Returns the checks to pass to ``raise_pending``; their messages are the immediate ones'.
+    """
+    g = executor.graph
+
+    def bad_step(row: int, saved: dict) -> Exception:
+        top = int(saved["top"][row])
+        inst = int(saved["inst"][row, top]) if top >= 0 else -1
+        ran = f" while {g.instance_path(inst)!r} ran" if inst >= 0 else ""
+        return BadStepError(
+            f"env row {row} returned reward {float(saved['reward'][row])} and duration "
+            f"{float(saved['tau'][row])}{ran}: rewards must be finite, durations finite and "
+            ">= 0 (ExecutorConfig(on_bad_step='skip') skips such steps and counts them)"
+        )
+
+    def stuck(row: int, saved: dict) -> Exception:
+        level = int(saved["stuck"][row].nonzero()[0])
+        return GraphError(
+            f"subtask {g.names[int(saved['node'][row, level])]!r} has no available child in "
+            f"env row {row} (every child is terminated, not initiable or masked)"
+        )
+
+    limit = executor.config.max_subtask_steps
+
+    def timeout(row: int, saved: dict) -> Exception:
+        level = int(saved["over"][row].nonzero()[0])
+        path = g.instance_path(int(saved["inst"][row, level]))
+        return SubtaskTimeoutError(
+            f"subtask {g.names[int(saved['node'][row, level])]!r} ran {limit} primitive steps "
+            f"without terminating (env row {row}, instance {path})"
+        )
+
+    def quiet_again() -> None:  # the guard's quiet window anew, at a read the trainer makes
+        if executor.depth > 1:  # (an invocation's steps grow by at most one per step)
+            longest = int(executor.stack.inv_steps[:, 1:].amax())
+            executor._guard_quiet = max(limit - longest - 1, 0)
+
+    def out_of_range(row: int, saved: dict) -> Exception:
+        col = int(saved["cols"][row].nonzero()[0])
+        return GraphError(
+            f"{g.names[col]!r}.abstract returned {int(saved['abstract'][row, col])}, outside "
+            f"[0, {g.nodes[col].n_states}) (env row {row})"
+        )
+
+    g.deferred_ranges = DeferredCheck(out_of_range)
+    executor.deferred_bad = DeferredCheck(bad_step)
+    executor.deferred_stuck = DeferredCheck(stuck)
+    executor.deferred_timeout = DeferredCheck(timeout, on_read=quiet_again)
+    checks = [executor.deferred_bad, executor.deferred_stuck, executor.deferred_timeout]
+    checks.append(g.deferred_ranges)
+    # a new executor's invocations have run no step: none reaches the guard for limit - 1
+    executor._guard_quiet = max(executor._guard_quiet, limit - 1)
+    if isinstance(env, BatchedEnv) and env.n_actions is not None:  # (overrides of the
+        # env's own action check that skip ``BatchedEnv``'s keep checking at once)
+        checks.append(env.defer_checks())
+    return checks

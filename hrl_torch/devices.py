@@ -1,0 +1,133 @@
+"""Moving a module's plain tensor attributes with its buffers (docs/design.md, "Any device").
+
+``nn.Module.to`` moves parameters and buffers only. Tensors a module keeps as plain attributes
+(lists of index tensors, scratch space) would stay on the CPU; a module with
+``MovesTensorAttrs`` moves them too, so that nothing of a run is left behind on another device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+
+def apply_to_tensors(fn, value):
+    """``value`` with ``fn`` applied to every tensor in it (tensors, lists, tuples, dicts)."""
+    if isinstance(value, torch.Tensor):
+        return fn(value)
+    if isinstance(value, list):
+        return [apply_to_tensors(fn, v) for v in value]
+    if isinstance(value, tuple):
+        return tuple(apply_to_tensors(fn, v) for v in value)
+    if isinstance(value, dict):
+        return {k: apply_to_tensors(fn, v) for k, v in value.items()}
+    return value
+
+
+class MovesTensorAttrs:
+    """Mixin for an ``nn.Module``: ``.to()`` and friends move its plain tensor attributes too.
+
+    Every attribute that is a tensor, or a list, tuple or dict holding one, moves with the
+    buffers, except those named in ``_kept_on_host`` (host copies construction reads).
+    """
+
+    _kept_on_host: tuple[str, ...] = ()
+
+    def _apply(self, fn, recurse=True):
+        out = super()._apply(fn, recurse)
+        for name, value in list(vars(self).items()):
+            if name not in _MODULE_DICTS and name not in self._kept_on_host:
+                if holds_tensor(value):
+                    setattr(self, name, apply_to_tensors(fn, value))
+        return out
+
+
+#: ``nn.Module``'s own dictionaries (parameters, buffers, submodules, hooks)
+_MODULE_DICTS = frozenset(vars(torch.nn.Module()))
+
+
+def holds_tensor(value, depth: int = 0) -> bool:
+    """Whether ``value`` is a tensor or a list, tuple or dict holding one."""
+    if isinstance(value, torch.Tensor):
+        return True
+    if depth < 3 and isinstance(value, (list, tuple)):
+        return any(holds_tensor(v, depth + 1) for v in value)
+    if depth < 3 and isinstance(value, dict):
+        return any(holds_tensor(v, depth + 1) for v in value.values())
+    return False
+
+
+def move_attributes(obj, fn) -> None:
+    """Apply ``fn`` to the tensors among ``obj``'s attributes, in place (a plain helper object)."""
+    for key, inner in vars(obj).items():
+        if holds_tensor(inner):
+            setattr(obj, key, apply_to_tensors(fn, inner))
+
+
+class KeepsHostCopies(MovesTensorAttrs):
+    """``MovesTensorAttrs`` that keeps the CPU buffers a move replaces (``host(name)``).
+
+    Construction reads structure (sizes, index sets) from them, never from the device: on
+    ``meta`` there is nothing to read, on a GPU each read would synchronise.
+    """
+
+    _kept_on_host = ("_host",)
+
+    def _apply(self, fn, recurse=True):
+        host = vars(self).get("_host", {})
+        host.update({n: b for n, b in self.named_buffers() if b.device.type == "cpu"})
+        out = super()._apply(fn, recurse)
+        self._host = host
+        return out
+
+    def host(self, name: str) -> torch.Tensor:
+        """Buffer ``name`` on the CPU, as built (construction reads it, not the device's)."""
+        buf = self.get_buffer(name)
+        return buf if buf.device.type == "cpu" else self._host[name]
+
+
+class DeferredCheck:
+    """A per-step check latched on the device; ``error()`` builds its exception afterwards.
+
+    ``record(bad [B], **fields)`` keeps, per row, the fields of the first step the row failed
+    (one ``where`` per field and an in-place or: no read, fixed shapes).
+
+    Args:
+        describe: ``describe(row, saved)`` -> the exception of the lowest failing row, given
+            the fields ``saved`` (host tensors) of its first failing step.
+        on_read: called after each read of the flags (a check can refresh what it knows).
+    """
+
+    def __init__(self, describe: Callable[[int, dict], Exception], on_read=None) -> None:
+        self.describe, self.on_read = describe, on_read
+        self.bad: torch.Tensor | None = None  # [B] bool: rows that failed so far
+        self.saved: dict[str, torch.Tensor] = {}
+        self._views: dict[int, torch.Tensor] = {}  # ``bad`` viewed for a field's rank
+
+    def takes(self, bad: torch.Tensor) -> bool:
+        """Whether ``bad`` has the rows of the latched ones (another batch: check at once)."""
+        return self.bad is None or self.bad.shape[0] == bad.shape[0]
+
+    def record(self, bad: torch.Tensor, **fields: torch.Tensor) -> None:
+        """Latch the rows ``bad [B]`` and, for rows failing for the first time, ``fields``."""
+        if self.bad is None:
+            self.bad = bad.clone()
+            self.saved = {k: v.clone() for k, v in fields.items()}
+            return
+        for key, value in fields.items():
+            kept = self._views.get(value.dim())
+            if kept is None:  # (a view of ``bad``, updated in place: made once)
+                kept = self._views[value.dim()] = self.bad.view(-1, *[1] * (value.dim() - 1))
+            self.saved[key] = torch.where(kept, self.saved[key], value)
+        self.bad.logical_or_(bad)
+
+    def error(self) -> Exception | None:
+        """The latched failure's exception, or ``None`` (reads the device)."""
+        failed = self.bad is not None and bool(self.bad.any())
+        if self.on_read is not None:
+            self.on_read()
+        if not failed:
+            return None
+        row = int(self.bad.nonzero()[0])
+        return self.describe(row, {k: v.cpu() for k, v in self.saved.items()})

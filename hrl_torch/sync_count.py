@@ -1,0 +1,135 @@
+"""Counting host synchronisations and data-dependent ops (docs/design.md, "Any device").
+
+A step that a CUDA graph can replay (or ``torch.compile`` can trace whole) reads nothing back
+to the host and has shapes that do not depend on data. ``HostSyncCounter`` is a
+``TorchDispatchMode`` that counts the aten ops breaking either rule while it is active: scalar
+reads (``.item()``, ``bool()``, ``int()``, ``float()`` of a tensor all reach
+``aten._local_scalar_dense``; ``tolist`` makes one per element), ``nonzero``, ``masked_select``,
+boolean-mask indexing (``index`` with a ``bool`` index), ``unique``, ``repeat_interleave``
+without an output size, copies from a non-CPU device to the CPU. Deterministic, and it needs
+no GPU: on the CPU it counts the same calls a GPU run would synchronise on.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+aten = torch.ops.aten
+
+#: ops whose output size (or value on the host) depends on the data
+DATA_DEPENDENT = {
+    aten._local_scalar_dense.default: "item",
+    aten.nonzero.default: "nonzero",
+    aten.nonzero_static.default: None,  # (static: fine)
+    aten.masked_select.default: "masked_select",
+    aten._unique2.default: "unique",
+    aten.unique_dim.default: "unique",
+    aten.unique_consecutive.default: "unique",
+    aten.argwhere.default: "nonzero",
+}
+
+
+#: tensor methods that read the data on the host with no aten op on the CPU
+_HOST_READS = ("tolist", "numpy")
+
+
+def _is_bool_index(args) -> bool:
+    indices = args[1] if len(args) > 1 else ()
+    return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in indices or ())
+
+
+class HostSyncCounter(TorchDispatchMode):
+    """Count host reads and data-dependent ops while active (``counts``: a ``Counter``).
+
+    ``with HostSyncCounter() as c: trainer.train_step()`` then ``c.total`` is the number of
+    such ops in the step, ``c.counts`` says which, ``c.where`` (with ``stacks=True``) where.
+    """
+
+    def __init__(self, stacks: bool = False) -> None:
+        super().__init__()
+        self.counts: Counter[str] = Counter()
+        self.stacks = stacks
+        self.where: Counter[str] = Counter()
+
+    @property
+    def total(self) -> int:
+        """The number of counted ops."""
+        return sum(self.counts.values())
+
+    def _kind(self, func, args, kwargs) -> str | None:
+        kind = DATA_DEPENDENT.get(func)
+        if kind is not None:
+            return kind
+        if func in (aten.index.Tensor, aten.index_put.default, aten.index_put_.default):
+            return "bool-index" if _is_bool_index(args) else None
+        if func is aten.repeat_interleave.Tensor and kwargs.get("output_size") is None:
+            return "repeat_interleave"
+        if func in (aten._to_copy.default, aten.copy_.default):
+            return _device_to_host(func, args, kwargs)
+        return None
+
+    def __enter__(self):
+        # ``tolist`` and ``numpy`` read a CPU tensor without an aten op: count them here
+        self._saved = {name: getattr(torch.Tensor, name) for name in _HOST_READS}
+        for name, method in self._saved.items():
+            setattr(torch.Tensor, name, self._counting(name, method))
+        return super().__enter__()
+
+    def __exit__(self, *exc):
+        for name, method in self._saved.items():
+            setattr(torch.Tensor, name, method)
+        return super().__exit__(*exc)
+
+    def _counting(self, name, method):
+        def counted(tensor, *args, **kwargs):
+            self._count(name)
+            return method(tensor, *args, **kwargs)
+
+        return counted
+
+    def _count(self, kind: str) -> None:
+        self.counts[kind] += 1
+        if self.stacks:
+            self.where[f"{kind} {_caller()}"] += 1
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        kind = self._kind(func, args, kwargs)
+        if kind is not None:
+            self._count(kind)
+        return func(*args, **kwargs)
+
+
+def _device_to_host(func, args, kwargs) -> str | None:
+    """A copy from a non-CPU tensor to the CPU (a read back), else ``None``."""
+    if func is aten._to_copy.default:
+        src, dst = args[0], kwargs.get("device")
+        moved = dst is not None and torch.device(dst).type == "cpu"
+        return "to_host" if moved and src.device.type != "cpu" else None
+    dst, src = args[0], args[1]
+    is_read = isinstance(src, torch.Tensor) and src.device.type != "cpu"
+    return "to_host" if is_read and dst.device.type == "cpu" else None
+
+
+def _caller() -> str:
+    """``file:line`` of the innermost frame of this project that made the op."""
+    import traceback
+
+    for frame in reversed(traceback.extract_stack()):
+        name = frame.filename
+        if ("hrl_torch" in name or "/agents/" in name or "/envs/" in name) and (
+            "sync_count" not in name
+        ):
+            return f"{name.split('/')[-2]}/{name.split('/')[-1]}:{frame.lineno}"
+    return "?"
+
+
+def count_train_step(trainer, steps: int = 1, stacks: bool = False) -> HostSyncCounter:
+    """The ops of ``steps`` calls of ``trainer.train_step()`` (what the trainer does per step)."""
+    with HostSyncCounter(stacks=stacks) as counter:
+        for _ in range(steps):
+            trainer.train_step()
+    return counter

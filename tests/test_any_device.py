@@ -1,0 +1,177 @@
+"""Any device, no host reads (docs/design.md, "Any device"; issue 27).
+
+``meta`` has CUDA's device rules and no data: a run built for it fails on any tensor left on
+the CPU and on any value read back to the host. Every registered domain x algorithm builds
+there with every tensor there; the configurations driven to no host read in a training step
+run a step there, and ``HostSyncCounter`` guards that they stay at 0.
+"""
+
+import pytest
+import torch
+
+import agents  # noqa: F401  (registers the domains)
+from hrl_torch import registry
+from hrl_torch.deferred import raise_pending
+from hrl_torch.executor import BadStepError
+from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.sync_count import HostSyncCounter, count_train_step
+
+PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
+#: configurations whose training step makes no host read (the counting test guards them)
+NO_HOST_READ = list(
+    dict.fromkeys(
+        [  # (the four named configurations first; no pair twice)
+            ("taxi", "maxq-q"),
+            ("small-agv", "har"),
+            ("four-agv", "cooperative"),
+            *[("taxi", a) for a in ("smdp-q", "q")],
+            *[("small-agv", a) for a in ("hdr", "rar", "maxq-q", "hh", "rvi-q")],
+            *[(d, a) for d in ("agv", "agv-ct") for a in ("har", "rar", "hdr")],
+            *[(d, a) for d in ("four-rooms", "key-door") for a in ("maxq-q", "q")],
+            *[("taxi-fuel", a) for a in ("maxq-q", "q")],
+            *[
+                ("four-agv", a)
+                for a in registry.get("four-agv").algos
+                if a not in ("fcfs", "hqf", "nsf")
+            ],
+            *[("trash", a) for a in registry.get("trash").algos],
+            *[("two-taxi", a) for a in registry.get("two-taxi").algos],
+        ]
+    )
+)
+
+
+def _options(device: str = "cpu") -> RunOptions:
+    return RunOptions(
+        seeds=[0, 1],
+        envs_per_learner=2,
+        progress=False,
+        tensorboard=False,
+        device=device,
+        eval_episodes=0,
+        check_env=False,
+    )
+
+
+def _tensors(obj, path: str, out: list, seen: set, depth: int = 0) -> None:
+    """Every tensor reachable from ``obj`` (modules, project objects, containers)."""
+    if id(obj) in seen or depth > 8:
+        return
+    seen.add(id(obj))
+    if isinstance(obj, torch.Tensor):
+        out.append((path, obj.device))
+        return
+    if isinstance(obj, torch.nn.Module):
+        named = list(obj.named_buffers()) + list(obj.named_parameters())
+        out.extend((f"{path}.{n}", t.device) for n, t in named)
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, (list, tuple)):
+        items = enumerate(obj)
+    elif hasattr(obj, "__dict__") and type(obj).__module__.split(".")[0] in (
+        "hrl_torch",
+        "envs",
+        "agents",
+    ):
+        items = [(k, v) for k, v in vars(obj).items() if k != "_host"]  # (host copies)
+    else:
+        return
+    for key, value in items:
+        _tensors(value, f"{path}.{key}", out, seen, depth + 1)
+
+
+@pytest.mark.parametrize(("domain", "algo"), PAIRS)
+def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    found: list = []
+    _tensors(trainer, "trainer", found, set())
+    assert found, "no tensor found: the walk is broken"
+    assert [p for p, dev in found if dev.type != "meta"] == []
+
+
+@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+def test_a_training_step_runs_on_meta(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    for _ in range(3):
+        trainer.train_step()
+    assert trainer.executor.stack.inst.device.type == "meta"
+    assert all(b.device.type == "meta" for b in trainer.learner.buffers())
+
+
+@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+def test_a_training_step_reads_nothing_back(domain, algo):
+    trainer = build_trainer(registry.get(domain), algo, _options())
+    # from the first step on, past a block of random draws (BatchRNG.AHEAD = 64)
+    counter = count_train_step(trainer, 70, stacks=True)
+    assert counter.total == 0, dict(counter.where)
+
+
+def test_the_counter_counts_each_kind_of_host_read():
+    x = torch.arange(6.0)
+    with HostSyncCounter() as counter:
+        x.sum().item()
+        bool(x.any())
+        (x > 2).nonzero()
+        x[x > 2]
+        x.tolist()
+        x.unique()
+        torch.zeros(3).add_(1)  # (no read)
+    assert dict(counter.counts) == {
+        "item": 2,
+        "nonzero": 1,
+        "bool-index": 1,
+        "tolist": 1,
+        "unique": 1,
+    }
+
+
+def test_a_nan_reward_is_raised_at_the_next_read_with_the_immediate_message():
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", _options())
+    step_all = trainer.env._step_all
+
+    def nan_in_row_1(action):
+        reward, duration, terminated = step_all(action)
+        return reward.index_fill(0, torch.tensor([1]), float("nan")), duration, terminated
+
+    trainer.train_step()
+    trainer.env._step_all = nan_in_row_1
+    trainer.train_step()  # (deferred: no raise inside the step)
+    trainer.env._step_all = step_all
+    trainer.train_step()
+    with pytest.raises(BadStepError, match=r"env row 1 returned reward nan and duration"):
+        raise_pending(trainer.deferred)
+
+
+def test_an_action_outside_the_space_is_raised_by_train_with_the_immediate_message():
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", _options())
+    step = trainer.env.step
+
+    def bad_action_in_row_2(action):
+        return step(action.index_fill(0, torch.tensor([2]), 9))
+
+    trainer.env.step = bad_action_in_row_2
+    with pytest.raises(
+        ValueError, match=r"action 9 outside the action space \[0, 6\) \(env row 2\)"
+    ):
+        trainer.train(steps=4)
+
+
+@pytest.mark.parametrize(("envs", "distinct"), [(1, True), (3, False)])
+def test_the_executor_reads_whether_rows_share_a_learner_on_the_cpu(envs, distinct):
+    opts = _options("meta")
+    opts.envs_per_learner = envs
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
+    assert trainer.executor.learner.distinct_rows is distinct
+    assert trainer.learner.rows_distinct(trainer.executor.learner) is distinct
+
+
+def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_message():
+    from envs.two_taxi import TwoTaxiEnv
+
+    env = TwoTaxiEnv([0], 2)
+    env.reset()
+    check = env.defer_checks()
+    env.step(torch.tensor([[0, 0], [0, 7]]))  # (no raise inside the step)
+    err = check.error()
+    assert isinstance(err, ValueError)
+    assert str(err) == "action 7 of agent 1 outside the action space [0, 7) (env row 1)"
