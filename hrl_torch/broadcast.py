@@ -65,18 +65,17 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     post = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     agent.epoch_codes = post
     used = [_codes(agent, k, post[k], post[k], rows, fixed) for k in range(len(agent.levels))]
-    if ctx is None or _changed(agent, rows, used):
-        ctx = agent.context(_with_codes(agent, rows, used))
+    ctx = agent.context(_with_codes(agent, rows, used))
     action = ex.act(ctx, agent.policy, agent.clock)
     invoked = ex.invoked
+    # n - 1 rounds always (no host read to stop early): a round re-chooses, with the same
+    # draws, only the rows whose seen codes changed; in the others it changes nothing
     for _ in range(n - 1):
         final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
         codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
         redo = torch.zeros_like(invoked[:, 0])
         for k, level in enumerate(agent.levels):
             redo |= invoked[:, level.depth + 1] & (codes[k] != used[k])
-        if not bool(redo.any()):
-            break
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = agent.context(_with_codes(agent, rows, codes))
@@ -86,14 +85,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     ex.invoked = invoked
     final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
-    if any(bool((c != u).any()) for c, u in zip(codes, used, strict=True)):
-        ctx = agent.context(_with_codes(agent, rows, codes))  # the targets' codes
-    return action, ctx
-
-
-def _changed(agent, rows, codes: list[torch.Tensor]) -> bool:
-    """Whether ``codes`` differ from those of ``rows`` anywhere."""
-    return any(bool((rows[lv.key] != c).any()) for lv, c in zip(agent.levels, codes, strict=True))
+    return action, agent.context(_with_codes(agent, rows, codes))  # the targets' codes
 
 
 def _codes(agent, k: int, post, final, rows, fixed: dict) -> torch.Tensor:

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import types
 from collections.abc import Callable
 
 import torch
@@ -58,11 +59,20 @@ def holds_tensor(value, depth: int = 0) -> bool:
     return False
 
 
-def move_attributes(obj, fn) -> None:
-    """Apply ``fn`` to the tensors among ``obj``'s attributes, in place (a plain helper object)."""
+_NOT_HELPERS = (types.FunctionType, types.MethodType, type, torch.nn.Module)
+
+
+def move_attributes(obj, fn, depth: int = 0) -> None:
+    """Apply ``fn`` to the tensors among ``obj``'s attributes, in place (a plain helper object).
+
+    A plain object held as an attribute (a rule wrapping another rule) is moved the same way,
+    two levels deep; functions, classes and modules are left alone.
+    """
     for key, inner in vars(obj).items():
         if holds_tensor(inner):
             setattr(obj, key, apply_to_tensors(fn, inner))
+        elif depth < 2 and hasattr(inner, "__dict__") and not isinstance(inner, _NOT_HELPERS):
+            move_attributes(inner, fn, depth + 1)
 
 
 class KeepsHostCopies(MovesTensorAttrs):

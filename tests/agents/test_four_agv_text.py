@@ -205,6 +205,7 @@ def test_registered_text_domain_keeps_the_old_one():
 class _Rng:
     def __init__(self, rows):
         self.batch_size = rows
+        self.device = torch.device("cpu")  # where the rule's memory goes
 
 
 def test_per_agv_rule_waits_at_a_full_drop_off_and_at_an_empty_pick_up():
