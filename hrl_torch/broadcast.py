@@ -34,6 +34,11 @@ class SameDraws:
         return getattr(self._policy, name)
 
 
+
+#: ``None``: stop the re-choosing rounds early on the CPU only; ``True``: never (every device,
+#: no host read); ``False``: always (the fastest on a CPU, reads the device on a GPU)
+STATIC_ROUNDS: bool | None = None
+
 def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.Tensor:
     """The others' ``U_l`` code each agent row sees when it chooses in agent order ``[B * n]``.
 
@@ -65,17 +70,22 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     post = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     agent.epoch_codes = post
     used = [_codes(agent, k, post[k], post[k], rows, fixed) for k in range(len(agent.levels))]
-    ctx = agent.context(_with_codes(agent, rows, used))
+    # a round re-chooses, with the same draws, only the rows whose seen codes changed (in the
+    # others it changes nothing); on the CPU rounds stop when none did (a cheap host read),
+    # elsewhere all n - 1 run, so the step reads nothing back (a CUDA graph can replay it)
+    stop_early = ex.device.type == "cpu" if STATIC_ROUNDS is None else not STATIC_ROUNDS
+    if ctx is None or not stop_early or _changed(agent, rows, used):
+        ctx = agent.context(_with_codes(agent, rows, used))
     action = ex.act(ctx, agent.policy, agent.clock)
     invoked = ex.invoked
-    # n - 1 rounds always (no host read to stop early): a round re-chooses, with the same
-    # draws, only the rows whose seen codes changed; in the others it changes nothing
     for _ in range(n - 1):
         final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
         codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
         redo = torch.zeros_like(invoked[:, 0])
         for k, level in enumerate(agent.levels):
             redo |= invoked[:, level.depth + 1] & (codes[k] != used[k])
+        if stop_early and not bool(redo.any()):
+            break
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = agent.context(_with_codes(agent, rows, codes))
@@ -85,7 +95,14 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     ex.invoked = invoked
     final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
-    return action, agent.context(_with_codes(agent, rows, codes))  # the targets' codes
+    if not stop_early or any(bool((c != u).any()) for c, u in zip(codes, used, strict=True)):
+        ctx = agent.context(_with_codes(agent, rows, codes))  # the targets' codes
+    return action, ctx
+
+
+def _changed(agent, rows, codes: list[torch.Tensor]) -> bool:
+    """Whether ``codes`` differ from those of ``rows`` anywhere (a host read)."""
+    return any(bool((rows[lv.key] != c).any()) for lv, c in zip(agent.levels, codes, strict=True))
 
 
 def _codes(agent, k: int, post, final, rows, fixed: dict) -> torch.Tensor:

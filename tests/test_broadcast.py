@@ -85,3 +85,24 @@ def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
     root = 0
     same = torch.equal(batch["values"]["V"][:, root], ctx.values["V"][:, root])
     assert same == (broadcast == "sequential")
+
+
+@pytest.mark.parametrize("domain", ["trash", "two-taxi", "four-agv"])
+def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
+    """All n - 1 re-choosing rounds (no host read) equal stopping when no code changed."""
+    import agents  # noqa: F401
+    import hrl_torch.broadcast
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    tables = {}
+    for static in (False, True):
+        monkeypatch.setattr(hrl_torch.broadcast, "STATIC_ROUNDS", static)
+        opts = RunOptions(seeds=[0, 1], envs_per_learner=4, progress=False, check_env=False)
+        opts.eval_episodes = 0
+        trainer = build_trainer(registry.get(domain), "cooperative", opts)
+        for _ in range(60):
+            trainer.train_step()
+        tables[static] = trainer.learner.state_dict()
+    for key, value in tables[False].items():
+        assert torch.equal(value, tables[True][key]), key
