@@ -20,6 +20,7 @@ CASES = {
     "--seeds two": "argument --seeds: expected a whole number, got 'two'",
     "--backend gym": "'taxi' has no backend 'gym'; choose from ('torch', 'gymnasium')",
     "--device tpu9": "argument --device: not a torch device: 'tpu9'",
+    "--device mps": "argument --device: mps: this torch build has no usable MPS device",
     "--seed-offset 4294967295 --seeds 2": (
         "seed 4294967296 is outside [0, 2**32): the random streams hash 32-bit seeds, so larger "
         "seeds would repeat smaller ones"
