@@ -587,23 +587,26 @@ def _rule(name: str, n_agents: int = 4):
 
 #: a job or a route that takes 2,000 moves is lost: abort it (no learning target) and go on
 GUARD = ExecutorConfig(max_subtask_steps=2_000, on_timeout="abort")
-_TRAIN = TrainConfig(steps=200_000, eval_every=0, eval_episodes=4, log_every=5_000)
+TRAIN = TrainConfig(steps=200_000, eval_every=0, eval_episodes=4, log_every=5_000)
+
+
+def algo_spec(make_graph, make_learner, description, multiagent=None, **env_options) -> AlgoSpec:
+    """One four-AGV algorithm: the budget, exploration, guard and rows every reading shares."""
+    return AlgoSpec(
+        make_graph=make_graph,
+        make_learner=make_learner,
+        make_exploration=_epsilon,
+        train=TRAIN,
+        envs_per_learner=32,
+        executor=GUARD,
+        description=description,
+        multiagent=multiagent,
+        env_options=env_options,
+    )
 
 
 def _algos() -> dict[str, AlgoSpec]:
-    def spec(make_graph, make_learner, description, multiagent=None, **env_options):
-        return AlgoSpec(
-            make_graph=make_graph,
-            make_learner=make_learner,
-            make_exploration=_epsilon,
-            train=_TRAIN,
-            envs_per_learner=32,
-            executor=GUARD,
-            description=description,
-            multiagent=multiagent,
-            env_options=env_options,
-        )
-
+    spec = algo_spec
     joint = MultiAgentConfig(COOPERATION)
     joint_nav = MultiAgentConfig(NAV_COOPERATION)
     algos = {

@@ -45,13 +45,12 @@ from tensordict import TensorDict
 from agents.four_agv import (
     DISPATCH_RULES,
     GAMMA,
-    GUARD,
     NAV_TARGETS,
     NO_JOB,
     Navigate,
-    _epsilon,
     _lexicographic_argmax,
     _stack,
+    algo_spec,
     da_states,
     dm_states,
     flat_graph,
@@ -350,23 +349,8 @@ def _maxq(timing: FourAGVTiming = TABLE_6_1, alpha: float | Linear = 0.2):
     return learner
 
 
-_TRAIN = TrainConfig(steps=200_000, eval_every=0, eval_episodes=4, log_every=5_000)
-
-
 def _algos() -> dict[str, AlgoSpec]:
-    def spec(make_graph, make_learner, description, multiagent=None, **env_options):
-        return AlgoSpec(
-            make_graph=make_graph,
-            make_learner=make_learner,
-            make_exploration=_epsilon,
-            train=_TRAIN,
-            envs_per_learner=32,
-            executor=GUARD,
-            description=description,
-            multiagent=multiagent,
-            env_options=env_options,
-        )
-
+    spec = algo_spec  # the earlier reading's budget, exploration and guard
     joint = MultiAgentConfig(COOPERATION)
 
     def coop():
