@@ -30,6 +30,7 @@ from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
+from tqdm import tqdm
 
 from hrl_torch.evaluation import Evaluator
 from hrl_torch.ops import argmax_last
@@ -98,7 +99,10 @@ class ThroughputEvaluator(Evaluator):
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
+        bar = tqdm(total=n_steps, desc="eval", unit="step", leave=False,
+                   disable=not trainer.config.progress)  # fmt: skip
         for k in range(n_steps):
+            bar.update(1)
             td = env.step(action)
             if self.horizon_time:  # the window is a span of time: count what starts in it
                 count = (clock >= self.burn_in_time) & (clock < end)
@@ -109,6 +113,7 @@ class ThroughputEvaluator(Evaluator):
                 count = torch.full_like(clock, k >= self.burn_in, dtype=torch.bool)
             sums += self._amounts(td) * count
             action = agent.step(td)
+        bar.close()
         per_learner = sums.view(self._n_sums, -1, env.envs_per_learner).sum(-1).cpu()
         throughput, rate = _rates(per_learner, self.scale)
         self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}

@@ -19,6 +19,7 @@ from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
+from tqdm import tqdm
 
 from hrl_torch.graph import TaskGraph
 
@@ -121,11 +122,14 @@ class EpisodicEvaluator(Evaluator):
         episodes = EvalEpisodes(env.batch_size, env.device)
         decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
         finite_only = trainer.executor_config.on_bad_step == "skip"
+        bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
+                   disable=not cfg.progress)  # fmt: skip
         for _ in range(cfg.eval_max_steps):
             if decisions_on:
                 episodes.record_root_decisions(agent.executor, graph)
             td = env.step(action)
             alive = episodes.add(td, counted_reward(td, finite_only), cfg.success_key)
+            bar.update(bar.total - alive - bar.n)  # the episodes finished so far
             if alive == 0:
                 break
             if env.subset_safe and alive <= env.batch_size // 2 and env.batch_size >= 32:
@@ -135,6 +139,7 @@ class EpisodicEvaluator(Evaluator):
                     agent, env, td = smaller, env.subset(keep), td[keep]
                     episodes.compact(keep)
             action = agent.step(td)
+        bar.close()
         if decisions_on:
             episodes.record_root_decisions(agent.executor, graph)
         return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
