@@ -111,25 +111,13 @@ def _run(args: argparse.Namespace) -> int:
     if args.project is not None and not os.path.isdir(args.project):
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
-    from hrl_torch import registry
     from hrl_torch.checkpoint import CheckpointError
     from hrl_torch.envcheck import EnvContractError
     from hrl_torch.experiment import format_summary, run_experiment
     from hrl_torch.runlock import RunLockedError
 
     if args.command == "list":
-        for name in registry.names():
-            try:
-                domain = registry.get(name)
-            except ValueError as err:  # a broken plugin does not hide the others
-                print(f"{name} [{registry.source(name)}]: {err}")
-                continue
-            backends = ", ".join(domain.backends)
-            print(f"{name} [{registry.source(name)}]: {domain.description} (backends: {backends})")
-            for algo, spec in sorted(domain.algos.items()):
-                budget = f"{spec.train.steps:,} steps x {spec.envs_per_learner} envs per seed"
-                print(f"    --algo {algo}: {spec.description} [{budget}]")
-        return 0
+        return _list(args.timed)
     if args.command == "eval":
         return _evaluate(args)
     if args.command == "sweep":
@@ -164,6 +152,46 @@ def _run(args: argparse.Namespace) -> int:
         )
         return 128 + signal.Signals[name].value
     return 0
+
+
+def _list(timed: bool) -> int:
+    """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
+    from hrl_torch import registry
+
+    for name in registry.names():
+        try:
+            domain = registry.get(name)
+        except ValueError as err:  # a broken plugin does not hide the others
+            print(f"{name} [{registry.source(name)}]: {err}")
+            continue
+        backends = ", ".join(domain.backends)
+        print(f"{name} [{registry.source(name)}]: {domain.description} (backends: {backends})")
+        for algo, spec in sorted(domain.algos.items()):
+            budget = f"{spec.train.steps:,} steps x {spec.envs_per_learner} envs per seed"
+            if timed:
+                seconds = _training_seconds(domain, algo)
+                shown = f"{seconds:.1f}" if seconds < 10 else f"{seconds:,.0f}"
+                budget += f", training about {shown} s per seed here"
+            print(f"    --algo {algo}: {spec.description} [{budget}]", flush=True)
+    return 0
+
+
+def _training_seconds(domain, algo: str, steps: int = 10) -> float:
+    """The budget's training time of one seed on this machine, from ``steps`` timed steps."""
+    import time
+
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    opts = RunOptions(seeds=[0], eval_episodes=0, progress=False, tensorboard=False)
+    trainer = build_trainer(domain, algo, opts)
+    for _ in range(3):  # warm up
+        trainer.train_step()
+    start = time.perf_counter()
+    for _ in range(steps):
+        trainer.train_step()
+    per_step = (time.perf_counter() - start) / steps
+    trainer.close()
+    return per_step * trainer.config.steps / trainer.E
 
 
 def _evaluate(args: argparse.Namespace) -> int:

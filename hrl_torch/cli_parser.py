@@ -61,7 +61,13 @@ def parser(version: str) -> argparse.ArgumentParser:
         help="import MODULE and register its DOMAIN / DOMAINS (repeatable)",
     )
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    sub.add_parser("list", help="list domains, algorithms and their default budgets")
+    listing = sub.add_parser("list", help="list domains, algorithms and their default budgets")
+    listing.add_argument(
+        "--timed",
+        action="store_true",
+        help="also time a few training steps of each algorithm: its budget's training time "
+        "for one seed on this machine (evaluation not included; about a minute in all)",
+    )
     train = _train_parser(sub)
     sweep = add_sweep_parser(sub)
     evaluate = sub.add_parser(

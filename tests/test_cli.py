@@ -135,3 +135,14 @@ def test_an_all_nan_evaluation_says_why():
 
     line = eval_line(64, "charts/eval_throughput", [float("nan")] * 2, 1.0)
     assert line.startswith("eval at step 64: greedy throughput nan for every seed: ")
+
+
+def test_list_shows_budgets_and_timed_training(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "on the MAXQ task graph [60,000 steps x 256 envs per seed]" in out
+    from hrl_torch import registry
+    from hrl_torch.cli import _training_seconds
+
+    seconds = _training_seconds(registry.get("taxi"), "q", steps=2)
+    assert 0 < seconds < 3600
