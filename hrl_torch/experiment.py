@@ -84,7 +84,7 @@ class RunOptions:
         at_least = {"envs_per_learner": 1, "steps": 1, "schedule_steps": 1, "eval_every": 0}
         at_least |= {"eval_episodes": 0, "checkpoint_every": 0}
         for name, low in at_least.items():
-            value = getattr(self, name)
+            value = vars(self)[name]
             if value is not None and (isinstance(value, bool) or value < low):
                 raise ValueError(f"RunOptions.{name} must be an integer >= {low}, got {value!r}")
         if not str(self.out).strip():

@@ -116,7 +116,8 @@ def _resolves_to(entry: str | DomainSpec, spec: str | DomainSpec) -> bool:
     if not isinstance(entry, str) or isinstance(spec, str):
         return False
     module, attr = entry.split(":")
-    return getattr(sys.modules.get(module), attr, None) is spec
+    loaded = sys.modules.get(module)
+    return loaded is not None and vars(loaded).get(attr) is spec
 
 
 def _first_line(err: BaseException) -> str:

@@ -17,6 +17,11 @@ MIN_NUMEL = 4096
 MAX_SHARE = 0.25  # beyond this share of other values, dense is smaller (12 bytes each vs 4)
 SAMPLE = 1024  # entries sampled to pick the fill value
 _BITS = {8: torch.int64, 4: torch.int32, 2: torch.int16, 1: torch.uint8}
+_DTYPES = {  # the dtypes a packed tensor may name (a checkpoint names no other attribute)
+    str(d).removeprefix("torch."): d
+    for d in (torch.float64, torch.float32, torch.float16, torch.bfloat16, torch.int64,
+              torch.int32, torch.int16, torch.int8, torch.uint8, torch.bool)
+}  # fmt: skip
 
 
 def _as_bits(t: torch.Tensor) -> torch.Tensor:
@@ -46,7 +51,7 @@ def pack_tensor(t: torch.Tensor) -> torch.Tensor | dict:
 
 def unpack_tensor(packed: dict) -> torch.Tensor:
     """The tensor ``pack_tensor`` stored, bit for bit."""
-    dtype = getattr(torch, packed["dtype"])
+    dtype = _DTYPES[packed["dtype"]]
     bits = packed["fill"].expand(torch.Size(packed[MARK]).numel()).clone()
     bits[packed["index"]] = packed["values"]
     return bits.view(dtype).reshape(packed[MARK])

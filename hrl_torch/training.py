@@ -41,7 +41,7 @@ class TrainConfig:
         lowest = {"steps": 0, "eval_every": 0, "eval_episodes": 0, "eval_max_steps": 1}
         lowest |= {"log_every": 1, "checkpoint_every": 0}
         for name, low in lowest.items():
-            value = getattr(self, name)
+            value = vars(self)[name]
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"TrainConfig.{name} must be an integer >= {low}, got {value!r}")
         if self.threshold is not None and not math.isfinite(self.threshold):
