@@ -14,7 +14,7 @@ from collections.abc import Iterable
 
 from hrl_torch.devices import DeferredCheck
 from hrl_torch.env import BatchedEnv
-from hrl_torch.executor import BadStepError, HierarchicalExecutor, SubtaskTimeoutError
+from hrl_torch.executor import HierarchicalExecutor, SubtaskTimeoutError, bad_step_error
 from hrl_torch.graph import GraphError
 
 __all__ = ["DeferredCheck", "defer_checks", "raise_pending"]
@@ -36,14 +36,7 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
     g = executor.graph
 
     def bad_step(row: int, saved: dict) -> Exception:
-        top = int(saved["top"][row])
-        inst = int(saved["inst"][row, top]) if top >= 0 else -1
-        ran = f" while {g.instance_path(inst)!r} ran" if inst >= 0 else ""
-        return BadStepError(
-            f"env row {row} returned reward {float(saved['reward'][row])} and duration "
-            f"{float(saved['tau'][row])}{ran}: rewards must be finite, durations finite and "
-            ">= 0 (ExecutorConfig(on_bad_step='skip') skips such steps and counts them)"
-        )
+        return bad_step_error(g, row, saved["reward"], saved["tau"], saved["top"], saved["inst"])
 
     def stuck(row: int, saved: dict) -> Exception:
         level = int(saved["stuck"][row].nonzero()[0])

@@ -72,6 +72,18 @@ class BadStepError(ValueError):
     """An env step with a non-finite reward or a non-finite or negative duration."""
 
 
+def bad_step_error(graph, row: int, reward, tau, top, inst) -> BadStepError:
+    """The error for env row ``row``'s non-finite reward or bad duration (``[B]`` / stacks)."""
+    level = int(top[row])
+    node = int(inst[row, level]) if level >= 0 else -1
+    ran = f" while {graph.instance_path(node)!r} ran" if node >= 0 else ""
+    return BadStepError(
+        f"env row {row} returned reward {float(reward[row])} and duration "
+        f"{float(tau[row])}{ran}: rewards must be finite, durations finite and >= 0 "
+        "(ExecutorConfig(on_bad_step='skip') skips such steps and counts them)"
+    )
+
+
 class HierarchicalExecutor:
     """Task-Stacks for ``B`` env rows over one task graph (``self.stack``, a ``TaskStack``).
 
@@ -415,14 +427,7 @@ class HierarchicalExecutor:
         bad = ~ok & ~step["is_init"]
         row = int((~ok).nonzero()[0])
         if self.config.on_bad_step == "raise":
-            top = int(f["top"][row])
-            inst = int(f["inst"][row, top]) if top >= 0 else -1
-            ran = f" while {self.graph.instance_path(inst)!r} ran" if inst >= 0 else ""
-            raise BadStepError(
-                f"env row {row} returned reward {float(reward[row])} and duration "
-                f"{float(tau[row])}{ran}: rewards must be finite, durations finite and >= 0 "
-                "(ExecutorConfig(on_bad_step='skip') skips such steps and counts them)"
-            )
+            raise bad_step_error(self.graph, row, reward, tau, f["top"], f["inst"])
         self.skipped_steps.index_add_(0, self.learner, bad.float())
         zero = torch.zeros((), device=reward.device)
         step = dict(step)
