@@ -47,6 +47,7 @@ the very decision after it delivered: the root picks another child or ``Idle`` f
 from __future__ import annotations
 
 from dataclasses import replace
+from fractions import Fraction
 
 import torch
 from tensordict import TensorDict
@@ -73,9 +74,10 @@ from envs.agv import (
     encode,
     shortest_paths,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import HARLearner, HDRLearner, RARLearner, RVIQLearner
 from hrl_torch.trainer import TrainConfig
@@ -278,8 +280,7 @@ def _evaluator(unit: str):
     return make
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.01, config.steps // 8))
+_EPSILON = linear_epsilon(1.0, 0.01, Fraction(1, 8))
 
 
 def _algos(continuous: bool) -> dict[str, AlgoSpec]:
@@ -299,39 +300,38 @@ def _algos(continuous: bool) -> dict[str, AlgoSpec]:
     return {
         "har": AlgoSpec(
             make_graph=agv_hierarchy,
-            make_learner=lambda g, p: HARLearner(g, p, 0.1, continuous=ct, gain_prior=prior),
-            make_exploration=_epsilon,
+            learner=Make(HARLearner, alpha=0.1, continuous=ct, gain_prior=prior),
+            exploration=_EPSILON,
             train=train,
             envs_per_learner=64,
             description="hierarchically optimal average reward RL (Algorithm 1)",
         ),
         "rar": AlgoSpec(
             make_graph=agv_hierarchy,
-            make_learner=lambda g, p: RARLearner(g, p, 0.1, continuous=ct, gain_prior=prior),
-            make_exploration=_epsilon,
+            learner=Make(RARLearner, alpha=0.1, continuous=ct, gain_prior=prior),
+            exploration=_EPSILON,
             train=train,
             envs_per_learner=64,
             description="recursively optimal average reward RL (Algorithm 2)",
         ),
         "hdr": AlgoSpec(
             make_graph=agv_hierarchy,
-            make_learner=lambda g, p: HDRLearner(g, p, 0.1, gamma, continuous=ct),
-            make_exploration=_epsilon,
+            learner=Make(HDRLearner, alpha=0.1, gamma=gamma, continuous=ct),
+            exploration=_EPSILON,
             train=train,
             envs_per_learner=64,
             description=f"hierarchically optimal discounted RL (gamma {HDR_GAMMA} per {unit})",
         ),
         "rvi-q": AlgoSpec(
             make_graph=flat_graph,
-            make_learner=lambda g, p: RVIQLearner(
-                g,
-                p,
-                0.3,
+            learner=Make(
+                RVIQLearner,
+                alpha=0.3,
                 continuous=ct,
                 reference_state=RVI_REFERENCE_STATE,
                 time_unit=CONTINUOUS.action_mean if ct else 1.0,
             ),
-            make_exploration=_epsilon,
+            exploration=_EPSILON,
             train=flat_train,
             envs_per_learner=64,
             description="flat RVI Q-learning over the 1,347,192 states (Abounadi et al. 2001)",

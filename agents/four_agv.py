@@ -75,6 +75,8 @@ rule policies over the agent rows: ``FirstComeFirstServe``, ``HighestQueueFirst`
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import torch
 from tensordict import TensorDict
 from torch.nn.functional import one_hot
@@ -104,10 +106,11 @@ from envs.four_agv import (
     shortest_paths,
     successors,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
@@ -562,27 +565,22 @@ def internal_init(timing: FourAGVTiming = TABLE_6_1) -> float:
     return -sum(per_move**k for k in range(LONGEST_ROUTE))
 
 
-def _maxq(timing: FourAGVTiming = TABLE_6_1):
-    """MAXQ-Q for the primitives' ``timing`` (``internal_init``)."""
-
-    def learner(graph: TaskGraph, sets: int) -> MaxQLearner:
-        init = internal_init(timing)
-        return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA, init_internal=init)
-
-    return learner
+def maxq_learner(
+    graph: TaskGraph, sets: int, timing: FourAGVTiming = TABLE_6_1, alpha: float = 0.2
+) -> MaxQLearner:
+    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``."""
+    init = internal_init(timing)
+    return MaxQLearner(graph, sets, alpha=alpha, gamma=GAMMA, init_internal=init)
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(0.3, 0.02, config.steps // 2))
+def _maxq(timing: FourAGVTiming = TABLE_6_1) -> Make:
+    return Make(maxq_learner, timing=timing, alpha=0.2)
 
 
-def _rule(name: str, n_agents: int = 4):
-    cls = DISPATCH_RULES[name]
-
-    def learner(graph: TaskGraph, sets: int) -> RuleLearner:
-        return RuleLearner(graph, sets, lambda rows: cls(rows // n_agents, n_agents))
-
-    return learner
+def rule_learner(graph: TaskGraph, sets: int, rule: str, n_agents: int = 4) -> RuleLearner:
+    """The dispatching rule ``DISPATCH_RULES[rule]`` for ``n_agents`` AGVs per row group."""
+    cls = DISPATCH_RULES[rule]
+    return RuleLearner(graph, sets, lambda rows: cls(rows // n_agents, n_agents))
 
 
 #: a job or a route that takes 2,000 moves is lost: abort it (no learning target) and go on
@@ -590,12 +588,12 @@ GUARD = ExecutorConfig(max_subtask_steps=2_000, on_timeout="abort")
 TRAIN = TrainConfig(steps=200_000, eval_every=0, eval_episodes=4, log_every=5_000)
 
 
-def algo_spec(make_graph, make_learner, description, multiagent=None, **env_options) -> AlgoSpec:
+def algo_spec(make_graph, learner, description, multiagent=None, **env_options) -> AlgoSpec:
     """One four-AGV algorithm: the budget, exploration, guard and rows every reading shares."""
     return AlgoSpec(
         make_graph=make_graph,
-        make_learner=make_learner,
-        make_exploration=_epsilon,
+        learner=learner,
+        exploration=linear_epsilon(0.3, 0.02, Fraction(1, 2)),
         train=TRAIN,
         envs_per_learner=32,
         executor=GUARD,
@@ -650,7 +648,7 @@ def _algos() -> dict[str, AlgoSpec]:
         ),
         "q": spec(
             lambda: flat_graph(1),
-            lambda g, p: SMDPQLearner(g, p, alpha=0.2, gamma=GAMMA),
+            Make(SMDPQLearner, alpha=0.2, gamma=GAMMA),
             "flat Q-learning, one AGV, buffer capacity 1 (Figure 6.6)",
             n_agents=1,
             capacity=1,
@@ -658,7 +656,9 @@ def _algos() -> dict[str, AlgoSpec]:
     }
     for name, cls in DISPATCH_RULES.items():
         algos[name] = spec(
-            lambda: flat_graph(CAPACITY), _rule(name), f"dispatching rule: {cls.name}"
+            lambda: flat_graph(CAPACITY),
+            Make(rule_learner, rule=name),
+            f"dispatching rule: {cls.name}",
         )
     return algos
 

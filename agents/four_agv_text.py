@@ -44,7 +44,6 @@ from tensordict import TensorDict
 
 from agents.four_agv import (
     DISPATCH_RULES,
-    GAMMA,
     NAV_TARGETS,
     NO_JOB,
     Navigate,
@@ -54,7 +53,7 @@ from agents.four_agv import (
     da_states,
     dm_states,
     flat_graph,
-    internal_init,
+    maxq_learner,
     primitives,
     step_cost,
 )
@@ -75,11 +74,12 @@ from envs.four_agv import (
     FourAGVEnv,
     FourAGVTiming,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import Linear
 from hrl_torch.graph import Subtask, TaskGraph
-from hrl_torch.learners import MaxQLearner, RuleLearner
+from hrl_torch.learners import RuleLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.trainer import TrainConfig
 
@@ -332,21 +332,18 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
     )
 
 
-def _per_agv_rule(name: str, n_agents: int = 4):
-    def learner(graph: TaskGraph, sets: int) -> RuleLearner:
-        return RuleLearner(graph, sets, lambda rows: PerAGVRule(name, rows // n_agents, n_agents))
-
-    return learner
+def per_agv_rule_learner(graph: TaskGraph, sets: int, rule: str, n_agents: int = 4):
+    """The per-AGV rule ``rule`` for ``n_agents`` AGVs per row group."""
+    return RuleLearner(graph, sets, lambda rows: PerAGVRule(rule, rows // n_agents, n_agents))
 
 
-def _maxq(timing: FourAGVTiming = TABLE_6_1, alpha: float | Linear = 0.2):
+def _per_agv_rule(name: str) -> Make:
+    return Make(per_agv_rule_learner, rule=name)
+
+
+def _maxq(timing: FourAGVTiming = TABLE_6_1, alpha: float | Linear = 0.2) -> Make:
     """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``."""
-
-    def learner(graph: TaskGraph, sets: int) -> MaxQLearner:
-        init = internal_init(timing)
-        return MaxQLearner(graph, sets, alpha=alpha, gamma=GAMMA, init_internal=init)
-
-    return learner
+    return Make(maxq_learner, timing=timing, alpha=alpha)
 
 
 def _algos() -> dict[str, AlgoSpec]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from agents.taxi import epsilon_first_third, flat_graph
 from envs.grid import TableEnv, optimal_values
+from hrl_torch.config import Make
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
@@ -38,15 +39,15 @@ def optimal_eval_return(
     return float(value[env_class([seed], episodes).reset()["observation"]].mean())
 
 
-def grid_algo(make_graph, make_learner, description: str, threshold: float, **options) -> AlgoSpec:
+def grid_algo(make_graph, learner, description: str, threshold: float, **options) -> AlgoSpec:
     """One algorithm of a gridworld.
 
     100,000 steps, 64 envs per seed, epsilon 1 -> 0.05 over the first third, 20 evaluations.
     """
     return AlgoSpec(
         make_graph=make_graph,
-        make_learner=make_learner,
-        make_exploration=epsilon_first_third,
+        learner=learner,
+        exploration=epsilon_first_third,
         train=TrainConfig(steps=STEPS, eval_every=STEPS // 20, threshold=threshold),
         envs_per_learner=64,
         description=description,
@@ -79,14 +80,14 @@ def gridworld_domain(
         algos={
             "maxq-q": grid_algo(
                 hierarchy,
-                lambda g, p: MaxQLearner(g, p, ALPHA, 1.0, all_states=True, init=maxq_init),
+                Make(MaxQLearner, alpha=ALPHA, gamma=1.0, all_states=True, init=maxq_init),
                 f"MAXQ-Q (all-states updating) on {hierarchy_text}",
                 threshold,
                 executor=ExecutorConfig(record_visited=VISITED),
             ),
             "q": grid_algo(
                 lambda: env_class.tabulate(flat_graph(n_states, n_actions)),
-                lambda g, p: SMDPQLearner(g, p, ALPHA, 1.0, init=q_init),
+                Make(SMDPQLearner, alpha=ALPHA, gamma=1.0, init=q_init),
                 f"flat Q-learning over the {n_states} states",
                 threshold,
             ),

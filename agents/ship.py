@@ -39,6 +39,7 @@ from tensordict import TensorDict
 from torch import nn
 
 from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, out_of_bounds, wrap_degrees
+from hrl_torch.config import Make
 from hrl_torch.executor import LEVEL, PRIMITIVE, ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Greedy
@@ -635,8 +636,8 @@ DOMAIN = DomainSpec(
     algos={
         "hybrid": AlgoSpec(
             make_graph=lambda: ship_hierarchy(PARAMS.out_of_bounds_reward),
-            make_learner=make_hybrid,
-            make_exploration=lambda config: EpsilonGreedy(PARAMS.epsilon),
+            learner=Make(make_hybrid, params=PARAMS),
+            exploration=Make(EpsilonGreedy, epsilon=PARAMS.epsilon),
             train=_TRAIN,
             envs_per_learner=1024,
             executor=_GUARDED,
@@ -644,16 +645,16 @@ DOMAIN = DomainSpec(
         ),
         "flat-pg": AlgoSpec(
             make_graph=lambda: flat_graph(PARAMS.out_of_bounds_reward),
-            make_learner=make_flat_pg,
-            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
+            learner=Make(make_flat_pg, params=PARAMS),
+            exploration=Make(Greedy),  # unused: PG nodes sample
             train=_TRAIN,
             envs_per_learner=512,
             description="flat PGRL: Gaussian over 9 tilings of 20 x 20 x 36 x 5",
         ),
         "actor-critic": AlgoSpec(
             make_graph=lambda: flat_graph(PARAMS.out_of_bounds_reward),
-            make_learner=make_actor_critic,
-            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
+            learner=Make(make_actor_critic, params=PARAMS),
+            exploration=Make(Greedy),  # unused: PG nodes sample
             train=_TRAIN,
             envs_per_learner=512,
             description="actor-critic (Konda): flat PGRL actor, 5-D tile-coded Q critic",

@@ -50,6 +50,8 @@ Unload              AGV location, status (+20, +1 or -1)             78
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import torch
 from tensordict import TensorDict
 
@@ -67,9 +69,10 @@ from envs.agv_small import (
     SmallAGVEnv,
     decode,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import (
     HARLearner,
@@ -216,10 +219,9 @@ def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
     )
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    # decays early to a small floor: with average-reward learners the floor sets how far the
-    # gain (measured on the exploring behaviour) lags the greedy policy's gain
-    return EpsilonGreedy(Linear(1.0, 0.01, config.steps // 8))
+# decays early to a small floor: with average-reward learners the floor sets how far the
+# gain (measured on the exploring behaviour) lags the greedy policy's gain
+_EPSILON = linear_epsilon(1.0, 0.01, Fraction(1, 8))
 
 
 #: Figure 4.3's discount for the discounted learners (the text found 0.99 best)
@@ -232,11 +234,11 @@ HH_GAIN_PRIOR = (1.0, 20_000.0)
 _TRAIN = TrainConfig(steps=150_000, eval_every=5_000, eval_episodes=4, log_every=5_000)
 
 
-def _spec(make_graph, make_learner, description: str) -> AlgoSpec:
+def _spec(make_graph, learner, description: str) -> AlgoSpec:
     return AlgoSpec(
         make_graph=make_graph,
-        make_learner=make_learner,
-        make_exploration=_epsilon,
+        learner=learner,
+        exploration=_EPSILON,
         train=_TRAIN,
         envs_per_learner=16,
         description=description,
@@ -255,32 +257,32 @@ DOMAIN = DomainSpec(
     algos={
         "har": _spec(
             small_agv_hierarchy,
-            lambda g, p: HARLearner(g, p, 0.2, gain_prior=HAR_GAIN_PRIOR),
+            Make(HARLearner, alpha=0.2, gain_prior=HAR_GAIN_PRIOR),
             "hierarchically optimal average reward RL (Algorithm 1)",
         ),
         "hdr": _spec(
             small_agv_hierarchy,
-            lambda g, p: HDRLearner(g, p, 0.2, GAMMA),
+            Make(HDRLearner, alpha=0.2, gamma=GAMMA),
             f"hierarchically optimal discounted RL (MAXQ-Q + CE, gamma {GAMMA})",
         ),
         "rar": _spec(
             small_agv_hierarchy,
-            lambda g, p: RARLearner(g, p, 0.2, gain_prior=RAR_GAIN_PRIOR),
+            Make(RARLearner, alpha=0.2, gain_prior=RAR_GAIN_PRIOR),
             "recursively optimal average reward RL (Algorithm 2)",
         ),
         "maxq-q": _spec(
             small_agv_hierarchy,
-            lambda g, p: MaxQLearner(g, p, 0.2, GAMMA),
+            Make(MaxQLearner, alpha=0.2, gamma=GAMMA),
             f"MAXQ-Q (Dietterich 2000), gamma {GAMMA}",
         ),
         "hh": _spec(
             small_agv_hierarchy,
-            lambda g, p: HHLearner(g, p, gain_prior=HH_GAIN_PRIOR),
+            Make(HHLearner, gain_prior=HH_GAIN_PRIOR),
             "HH-learning (Seri and Tadepalli 2002), model-based",
         ),
         "rvi-q": _spec(
             flat_graph,
-            lambda g, p: RVIQLearner(g, p, 0.2),
+            Make(RVIQLearner, alpha=0.2),
             "flat RVI Q-learning over the 78 states (not in Figure 4.3)",
         ),
     },

@@ -25,12 +25,15 @@ Putdown        taxi location, destination                  100
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import torch
 from tensordict import TensorDict
 
 from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
+from hrl_torch.config import Make
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.trainer import TrainConfig
@@ -145,12 +148,9 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch"):
     raise ValueError(f"unknown backend {backend!r}")
 
 
-def epsilon_first_third(config: TrainConfig) -> EpsilonGreedy:
-    """Epsilon-greedy from 1 to 0.05 over the first third of the budget.
-
-    Taxi's recipe, also used by taxi-fuel, the gridworlds and the toy-text envs.
-    """
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 3))
+#: Epsilon-greedy from 1 to 0.05 over the first third of the budget: taxi's recipe, also used
+#: by taxi-fuel, the gridworlds and the toy-text envs
+epsilon_first_third = linear_epsilon(1.0, 0.05, Fraction(1, 3))
 
 
 # Pessimistic initial values (below every true completion value): estimates then rise toward
@@ -169,24 +169,24 @@ DOMAIN = DomainSpec(
     algos={
         "maxq-q": AlgoSpec(
             make_graph=taxi_hierarchy,
-            make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=epsilon_first_third,
+            learner=Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
+            exploration=epsilon_first_third,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
             description="MAXQ-Q (Dietterich 2000) on the MAXQ task graph",
         ),
         "smdp-q": AlgoSpec(
             make_graph=taxi_hierarchy,
-            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=epsilon_first_third,
+            learner=Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
+            exploration=epsilon_first_third,
             train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
             envs_per_learner=256,
             description="SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph",
         ),
         "q": AlgoSpec(
             make_graph=lambda: tabulated(flat_graph()),
-            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=epsilon_first_third,
+            learner=Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
+            exploration=epsilon_first_third,
             train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
             envs_per_learner=256,
             description="flat Q-learning over the 500 states",

@@ -47,6 +47,7 @@ from agents.taxi import (
     taxi_primitives,
 )
 from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
+from hrl_torch.config import Make
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -105,9 +106,8 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> TaxiFuelEn
 HPGRL_ALPHA = 0.005
 
 
-def make_hpgrl(graph: TaskGraph, n_learners: int) -> HPGRLLearner:
-    """Algorithm 3 at every subtask: one softmax parameter per (abstract state, child)."""
-    return HPGRLLearner(graph, n_learners, PGConfig(alpha=HPGRL_ALPHA, trace_len=200))
+#: Algorithm 3 at every subtask: one softmax parameter per (abstract state, child)
+HPGRL_PG = PGConfig(alpha=HPGRL_ALPHA, trace_len=200)
 
 
 DOMAIN = DomainSpec(
@@ -117,24 +117,25 @@ DOMAIN = DomainSpec(
     algos={
         "hpgrl": AlgoSpec(
             make_graph=taxi_fuel_hierarchy,
-            make_learner=make_hpgrl,
-            make_exploration=lambda config: Greedy(),  # unused: PG nodes sample
+            learner=Make(HPGRLLearner),
+            pg=HPGRL_PG,
+            exploration=Make(Greedy),  # unused: PG nodes sample
             train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="HPGRL (Algorithm 3) with tabular softmax policies at every subtask",
         ),
         "maxq-q": AlgoSpec(
             make_graph=taxi_fuel_hierarchy,
-            make_learner=lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=epsilon_first_third,
+            learner=Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
+            exploration=epsilon_first_third,
             train=TrainConfig(steps=1_000_000, eval_every=10_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="MAXQ-Q (Dietterich 2000) on the taxi-fuel graph",
         ),
         "q": AlgoSpec(
             make_graph=flat_fuel_graph,
-            make_learner=lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
-            make_exploration=epsilon_first_third,
+            learner=Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
+            exploration=epsilon_first_third,
             train=TrainConfig(steps=3_000_000, eval_every=20_000, success_key="!out_of_fuel"),
             envs_per_learner=256,
             description="flat Q-learning over the 6,500 states",

@@ -20,6 +20,7 @@ of equal value, so these learners discount (``gamma`` 0.99). CliffWalking costs 
 from __future__ import annotations
 
 from agents.taxi import epsilon_first_third, flat_graph
+from hrl_torch.config import Make
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.learners import SMDPQLearner
 from hrl_torch.trainer import TrainConfig
@@ -56,8 +57,8 @@ def _domain(name, env_id, *, n_states, gamma, init, optimal, steps, description,
         algos={
             "q": AlgoSpec(
                 make_graph=lambda: flat_graph(n_states, 4),
-                make_learner=lambda g, p: SMDPQLearner(g, p, ALPHA, gamma, init=init),
-                make_exploration=epsilon_first_third,
+                learner=Make(SMDPQLearner, alpha=ALPHA, gamma=gamma, init=init),
+                exploration=epsilon_first_third,
                 train=TrainConfig(
                     steps=steps, eval_every=steps // 20, eval_episodes=10, threshold=optimal
                 ),

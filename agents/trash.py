@@ -52,6 +52,7 @@ abstraction keeps only what the robot's own action changes.
 from __future__ import annotations
 
 from dataclasses import replace
+from fractions import Fraction
 
 import torch
 from tensordict import TensorDict
@@ -69,9 +70,10 @@ from envs.trash import (
     WAIT,
     TrashEnv,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
@@ -196,8 +198,7 @@ def make_eval_env(
     return make_env(seeds, envs_per_learner, backend, n_agents, **options)
 
 
-def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
-    return MaxQLearner(graph, sets, alpha=0.2, gamma=GAMMA, init=INIT)
+_MAXQ = Make(MaxQLearner, alpha=0.2, gamma=GAMMA, init=INIT)
 
 
 #: initial joint completions of the cooperative root: optimistic (0, not ``INIT``), so that a
@@ -206,14 +207,7 @@ def _maxq(graph: TaskGraph, sets: int) -> MaxQLearner:
 COOPERATIVE_ROOT_INIT = 0.0
 
 
-def _maxq_cooperative(graph: TaskGraph, sets: int) -> MaxQLearner:
-    return MaxQLearner(
-        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_nodes={"Root": COOPERATIVE_ROOT_INIT}
-    )
-
-
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(0.5, 0.02, config.steps // 2))
+_MAXQ_COOPERATIVE = _MAXQ.with_argument("init_nodes", {"Root": COOPERATIVE_ROOT_INIT})
 
 
 def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
@@ -223,8 +217,8 @@ def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
 
 def _algos() -> dict[str, AlgoSpec]:
     spec = algo_family(
-        make_learner=_maxq,
-        make_exploration=_epsilon,
+        learner=_MAXQ,
+        exploration=linear_epsilon(0.5, 0.02, Fraction(1, 2)),
         train=TrainConfig(steps=60_000, eval_every=10_000, eval_episodes=16),
         envs_per_learner=16,
     )
@@ -236,7 +230,7 @@ def _algos() -> dict[str, AlgoSpec]:
                 "Cooperative HRL: the root's completions know the other robot's U_1 task",
                 MultiAgentConfig(COOPERATION),
             ),
-            make_learner=_maxq_cooperative,
+            learner=_MAXQ_COOPERATIVE,
         ),
         "selfish": spec(trash_hierarchy, "selfish multi-agent HRL: each robot learns alone"),
         "single": spec(trash_hierarchy, "single-agent HRL: one robot", n_agents=1),

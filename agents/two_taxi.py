@@ -97,6 +97,7 @@ pairs or store values we cannot infer, so only the selfish count is reproduced c
 from __future__ import annotations
 
 from collections.abc import Mapping
+from fractions import Fraction
 from functools import partial
 
 import torch
@@ -124,9 +125,10 @@ from envs.two_taxi import (
     WEST,
     TwoTaxiEnv,
 )
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.multiagent import Communication, Cooperation, MultiAgentConfig, cooperative_graph
@@ -384,10 +386,12 @@ def make_text_env(
     )
 
 
-def _maxq(graph: TaskGraph, sets: int, nav_cost: float = 1.0) -> MaxQLearner:
+def maxq_learner(
+    graph: TaskGraph, sets: int, alpha: float = 0.2, nav_cost: float = 1.0
+) -> MaxQLearner:
     """MAXQ-Q; the U_1 parents' completions start at ``SERVE_INIT`` / ``WAIT_INIT``."""
     learner = MaxQLearner(
-        graph, sets, alpha=0.2, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL * nav_cost
+        graph, sets, alpha=alpha, gamma=GAMMA, init=INIT, init_internal=INIT_INTERNAL * nav_cost
     )
     with torch.no_grad():
         for parent in ("Root", "Com", "NotCom"):
@@ -398,10 +402,6 @@ def _maxq(graph: TaskGraph, sets: int, nav_cost: float = 1.0) -> MaxQLearner:
                 table.fill_(SERVE_INIT)
                 table[..., wait] = WAIT_INIT
     return learner
-
-
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(0.5, 0.02, config.steps // 2))
 
 
 def _delivered(td: TensorDict) -> torch.Tensor:
@@ -438,8 +438,8 @@ def cooperative_two_taxi_graph(text: bool = False) -> TaskGraph:
 def _algos(text: bool = False, **env_options) -> dict[str, AlgoSpec]:
     """The learners of Section 6.6 (``text``: on the graphs whose Get ends at its station)."""
     spec = algo_family(
-        make_learner=partial(_maxq, nav_cost=TEAM_NAV_COST) if text else _maxq,
-        make_exploration=_epsilon,
+        learner=Make(maxq_learner, nav_cost=TEAM_NAV_COST if text else 1.0),
+        exploration=linear_epsilon(0.5, 0.02, Fraction(1, 2)),
         train=TrainConfig(steps=200_000, eval_every=20_000, eval_episodes=4),
         envs_per_learner=16,
     )

@@ -245,6 +245,7 @@ def _train_options(args: argparse.Namespace):
     """
     from hrl_torch import registry
     from hrl_torch.checkpoint import CheckpointError, load_checkpoint
+    from hrl_torch.config import parse_settings
     from hrl_torch.experiment import RunOptions, check_choice
 
     given = {
@@ -262,6 +263,12 @@ def _train_options(args: argparse.Namespace):
         first, n = args.seed_offset or 0, args.seeds or 5
         given["seeds"] = list(range(first, first + n))
     given = {k: v for k, v in given.items() if v is not None}
+    try:  # --set: the names the sweep takes, checked against the algorithm below
+        settings = parse_settings(args.set)
+    except ValueError as err:
+        raise UserError.of(err) from err
+    if settings:
+        given["settings"] = settings
     display = {
         "progress": not args.no_progress,
         "tensorboard": not args.no_tensorboard,
@@ -280,9 +287,10 @@ def _train_options(args: argparse.Namespace):
             missing = "the domain" if args.domain is None else "--algo"
             raise UserError(f"train needs {missing} (or --resume CHECKPOINT)")
         domain = registry.get(args.domain)
-        check_choice(domain, args.algo, given.get("backend", "torch"))
+        spec = check_choice(domain, args.algo, given.get("backend", "torch"))
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
         raise UserError.of(err) from err
+    _check_settings(spec, settings)
     given.setdefault("seeds", list(range(5)))
     out = "runs" if args.out is None else args.out
     if not out.strip():
@@ -293,6 +301,20 @@ def _train_options(args: argparse.Namespace):
         raise UserError.of(err) from err
     _check_writable_folder(out, "--out")
     return domain, args.algo, opts
+
+
+def _check_settings(spec, settings: dict) -> None:
+    """``--set``: an unknown name, or a value the learner or exploration refuses, in one line."""
+    from hrl_torch.experiment import with_overrides
+
+    if not settings:
+        return
+    try:
+        changed = with_overrides(spec, settings)
+        changed.make_learner(changed.make_graph(), 1)
+        changed.make_exploration(changed.train)
+    except (TypeError, ValueError) as err:
+        raise UserError(f"--set: {' '.join(str(err).split())}") from err
 
 
 def _check_writable_folder(path: str, option: str) -> None:

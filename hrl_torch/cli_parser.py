@@ -137,6 +137,14 @@ def _train_parser(sub) -> argparse.ArgumentParser:
     train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
+    train.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="change one setting, e.g. learner.alpha=0.2 or exploration.epsilon.end=0.01 "
+        "(repeatable; the names `hrl-torch sweep --grid` takes)",
+    )
     return train
 
 
@@ -146,8 +154,10 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sweep",
         help="run a grid of hyperparameters as Ray Tune trials, one population run each",
-        epilog='Needs the sweep extra: pip install -e ".[sweep]". Grid names: TrainConfig '
-        "fields, envs_per_learner and the learner's constructor arguments.",
+        epilog='Ray needs the sweep extra: pip install -e ".[sweep]" (or --in-process). Grid '
+        "names: TrainConfig fields, envs_per_learner, and the dotted fields of the learner, "
+        "exploration and PG setting (learner.alpha, exploration.epsilon.end, pg.alpha; an "
+        "unknown name is refused with the list).",
     )
     p.add_argument("domain", help="a name `hrl-torch list` shows")
     p.add_argument("--algo", required=True, help="one of the domain's algorithms")
@@ -166,4 +176,9 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs", help="parent of the sweep folder (default: runs)")
     p.add_argument("--name", default=None, help="sweep folder (default: DOMAIN__ALGO__sweep)")
     p.add_argument("--resume", action="store_true", help="continue the sweep in its folder")
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="no Ray: run the trials one after another in this process",
+    )
     return p

@@ -11,14 +11,14 @@ import json
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
 
 from hrl_torch import __version__, registry
 from hrl_torch.checkpoint import load_checkpoint
-from hrl_torch.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family  # noqa: F401 (re-exported)
+from hrl_torch.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.envcheck import check_env
 from hrl_torch.failures import RunFailed
 from hrl_torch.multiagent import MultiAgentConfig
@@ -59,6 +59,9 @@ class RunOptions:
             env of the domain (two rows, 32 random steps; the training env is not touched).
         check_leaf_rewards: warn while training when one abstract state of a primitive sees
             different rewards (``TrainConfig.check_leaf_rewards``).
+        settings: the algorithm's settings changed by name (``hrl-torch train --set``):
+            ``{"learner.alpha": 0.2, "exploration.epsilon.end": 0.01}``, applied by
+            ``hrl_torch.domain.with_overrides``; the options above win over their names.
     """
 
     seeds: Sequence[int] = (0,)
@@ -78,6 +81,7 @@ class RunOptions:
     schedule_steps: int | None = None
     check_env: bool = True
     check_leaf_rewards: bool = False
+    settings: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.seeds = check_seeds(self.seeds)
@@ -111,6 +115,7 @@ RUN_KEYS = (
     "checkpoint_every",
     "device",
     "collector",
+    "settings",
 )
 #: the options a continuation may change: its budget and how often it checkpoints
 CONTINUE_KEYS = ("steps", "checkpoint_every")
@@ -129,7 +134,7 @@ def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
 
 def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
     """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
-    spec = check_choice(domain, algo, opts.backend)
+    spec = algo_spec(domain, algo, opts)
     config = _train_config(spec, opts)
     schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
@@ -178,10 +183,16 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         "checkpoint_every": config.checkpoint_every,
         "device": opts.device,
         "collector": opts.collector,
+        "settings": dict(opts.settings),
         "version": __version__,
         "code": code_version(),
     }
     return trainer
+
+
+def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:
+    """The ``AlgoSpec`` a run uses: ``algo``'s with ``opts.settings`` (``ValueError``)."""
+    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings)
 
 
 def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
@@ -206,7 +217,7 @@ def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
     continues with the original schedules), the display options freely; every other option
     must equal the run's, else ``ValueError`` names it.
     """
-    recorded = {k: run[k] for k in ("domain", "algo", *RUN_KEYS)}
+    recorded = {"settings": {}} | {k: run[k] for k in ("domain", "algo", *RUN_KEYS) if k in run}
     for key, value in changes.items():
         if key in recorded and key not in CONTINUE_KEYS and value != recorded[key]:
             raise ValueError(
@@ -245,10 +256,11 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     Returns the run folder and the summary written to its ``summary.json``.
     """
     torch.set_num_threads(1)
-    spec = check_choice(domain, algo, opts.backend)  # before any folder is made
+    check_choice(domain, algo, opts.backend)  # before any folder is made
     state = load_checkpoint(opts.resume) if opts.resume else None
     if state is not None and "run" in state:  # the recorded settings, checked against opts
         opts = continue_options(opts.resume, state["run"], **_given(domain, algo, opts))
+    spec = algo_spec(domain, algo, opts)
     if opts.check_env:
         check_domain_env(domain, algo, opts.backend)
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
@@ -329,6 +341,7 @@ def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: 
             trainer.load_state_dict(state["trainer"])
         hparams = {  # the learner's and the exploration's own settings, as built
             **hparams,
+            "settings": algo_spec(domain, algo, opts).settings(),  # every field, by name
             "learner": settings_of(trainer.learner),
             "exploration": settings_of(trainer.exploration),
         }

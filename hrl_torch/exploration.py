@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from hrl_torch.config import Budget, Make
 from hrl_torch.ops import argmax_last
 
 _TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
@@ -183,3 +184,12 @@ class TriggeredEpsilon(nn.Module):
             self.fired_at >= 0, self.start / decay, torch.full_like(decay, self.start)
         )
         return eps.float()
+
+
+def linear_epsilon(start: float, end: float, share) -> Make:
+    """Epsilon-greedy, epsilon linear from ``start`` to ``end`` over ``share`` of the budget.
+
+    As data (``AlgoSpec.exploration``): fields ``epsilon.start``, ``epsilon.end`` and
+    ``epsilon.steps.fraction``; ``share`` e.g. ``Fraction(1, 3)``.
+    """
+    return Make(EpsilonGreedy, epsilon=Make(Linear, start=start, end=end, steps=Budget(share)))

@@ -1,6 +1,7 @@
 """Hyperparameter sweeps on Ray Tune: each configuration is one population run.
 
-    hrl-torch sweep taxi --algo maxq-q --grid alpha=0.1,0.5 --grid init=-20,0 --seeds 5
+    hrl-torch sweep taxi --algo maxq-q --grid learner.alpha=0.1,0.5 \
+        --grid exploration.epsilon.end=0.01,0.05 --seeds 5
 
 The grid's product of values gives the configurations; each is one Ray Tune trial that trains
 every seed at once through ``run_experiment``. Ray is an optional extra
@@ -13,7 +14,9 @@ every seed at once through ``run_experiment``. Ray is an optional extra
                           ``tensorboard --logdir {out}/{name}`` groups the trials
     tune/                 Ray Tune's experiment state, restored by ``resume=True``
 
-A value reaches its run through ``with_overrides`` (which keys can be swept is said there).
+A value reaches its run through ``hrl_torch.domain.with_overrides`` (the names it takes are
+listed there): a new ``AlgoSpec`` by ``dataclasses.replace``, nothing patched, so trials may
+run side by side in one process.
 """
 
 from __future__ import annotations
@@ -21,7 +24,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import inspect
 import itertools
 import json
 import math
@@ -34,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hrl_torch.config import parse_value, split_name
+from hrl_torch.domain import TRAIN_KEYS, setting_names, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.experiment import (
     AlgoSpec,
     DomainSpec,
@@ -44,23 +48,14 @@ from hrl_torch.experiment import (
 )
 from hrl_torch.runlog import mean_ci95
 
-#: the numeric ``TrainConfig`` fields a grid may set
-TRAIN_KEYS = (
-    "steps",
-    "eval_every",
-    "eval_episodes",
-    "eval_max_steps",
-    "log_every",
-    "threshold",
-    "checkpoint_every",
-)
 INSTALL_HINT = 'Ray is not installed: pip install -e ".[sweep]"'
 
 
 # ---------------------------------------------------------------------- the grid
 def parse_grid(items: Sequence[str]) -> dict[str, list]:
-    """``["alpha=0.1,0.5", "init=-20,0"]`` -> ``{"alpha": [0.1, 0.5], "init": [-20, 0]}``.
+    """``["learner.alpha=0.1,0.5", "steps=100"]`` -> ``{"learner.alpha": [0.1, 0.5], ...}``.
 
+    Names are dotted (``exploration.epsilon.end``; ``with_overrides`` says which exist).
     Values are whole numbers (``int``), other finite numbers (``float``) or ``true`` /
     ``false``. A malformed item, a repeated name or value raises ``ValueError`` naming the item.
     """
@@ -68,33 +63,17 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
     for item in items:
         name, sep, values = item.partition("=")
         name = name.strip()
-        if not sep or not name.isidentifier():
-            raise ValueError(f"grid item {item!r}: expected NAME=V1,V2,... (e.g. alpha=0.1,0.5)")
+        if not sep or split_name(name) is None:
+            raise ValueError(
+                f"grid item {item!r}: expected NAME=V1,V2,... (e.g. learner.alpha=0.1,0.5)"
+            )
         if name in grid:
             raise ValueError(f"grid item {item!r}: {name} is given twice")
-        parsed = [_parse_value(item, text.strip()) for text in values.split(",")]
+        parsed = [parse_value(item, text.strip()) for text in values.split(",")]
         if len(set(map(repr, parsed))) < len(parsed):
             raise ValueError(f"grid item {item!r}: a value is repeated")
         grid[name] = parsed
     return grid
-
-
-def _parse_value(item: str, text: str) -> int | float | bool:
-    if text.lower() in ("true", "false"):
-        return text.lower() == "true"
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not text:
-        raise ValueError(f"grid item {item!r}: an empty value")
-    if not math.isfinite(value):
-        raise ValueError(f"grid item {item!r}: {text!r} is not a finite number (or true/false)")
-    return value
 
 
 def configurations(grid: dict[str, list]) -> list[dict]:
@@ -105,111 +84,6 @@ def configurations(grid: dict[str, list]) -> list[dict]:
 def label(config: dict) -> str:
     """Folder name of a configuration: ``alpha=0.1_init=-20``."""
     return "_".join(f"{k}={v}" for k, v in config.items()) or "default"
-
-
-# ---------------------------------------------------------------------- overrides
-def with_overrides(spec: AlgoSpec, overrides: dict) -> AlgoSpec:
-    """``spec`` with hyperparameters changed by name.
-
-    What can be swept:
-
-    - ``TrainConfig`` fields ``steps``, ``eval_every``, ``eval_episodes``, ``eval_max_steps``,
-      ``log_every``, ``threshold``, ``checkpoint_every`` (``dataclasses.replace``); the
-      exploration schedules read the new ``steps``;
-    - ``envs_per_learner``;
-    - any named constructor argument of the learner class that ``spec.make_learner`` builds,
-      except ``graph`` and ``n_learners`` (e.g. ``alpha``, ``gamma``, ``init`` of
-      ``MaxQLearner``). ``make_learner`` still runs as written, but while it runs the class's
-      ``__init__`` is replaced by one that binds the call's arguments, positional or keyword,
-      and replaces the overridden ones; arguments the call does not override keep the
-      domain's values, and whatever the closure does after construction still happens.
-      Learners of other classes that the closure builds (sub-learners) are unchanged. The
-      replacement is process-wide while ``make_learner`` runs: not thread-safe.
-
-    What cannot: exploration settings (``make_exploration`` is a closure without arguments),
-    fields of an option dataclass passed to the learner (``PGConfig``: only the whole
-    argument), env options, executor options, the other ``TrainConfig`` fields. Learner
-    values are checked only by the learner's constructor: ``run_sweep`` builds every
-    configuration's learner once before Ray starts.
-
-    Raises:
-        ValueError: a key none of the above names (the message lists the allowed ones), or a
-            value of the wrong type for a ``TrainConfig`` field or ``envs_per_learner``.
-    """
-    if not overrides:
-        return spec
-    cls = type(spec.make_learner(spec.make_graph(), 1))
-    learner_keys = _learner_keys(cls)
-    unknown = sorted(set(overrides) - set(TRAIN_KEYS) - {"envs_per_learner"} - set(learner_keys))
-    if unknown:
-        raise ValueError(
-            f"cannot sweep {', '.join(unknown)}: choose from TrainConfig fields "
-            f"{', '.join(TRAIN_KEYS)}, envs_per_learner, or {cls.__name__} arguments "
-            f"{', '.join(learner_keys)}"
-        )
-    train = {k: v for k, v in overrides.items() if k in TRAIN_KEYS}
-    for key, value in overrides.items():
-        if key == "threshold" and not _is(value, (int, float)):
-            raise ValueError(f"threshold must be a number, got {value!r}")
-        if key in (*TRAIN_KEYS, "envs_per_learner") and key != "threshold" and not _is(value, int):
-            raise ValueError(f"{key} must be a whole number, got {value!r}")
-    spec = dataclasses.replace(spec, train=dataclasses.replace(spec.train, **train))
-    if "envs_per_learner" in overrides:
-        spec = dataclasses.replace(spec, envs_per_learner=overrides["envs_per_learner"])
-    kwargs = {k: v for k, v in overrides.items() if k in learner_keys}
-    if kwargs:
-        spec = dataclasses.replace(spec, make_learner=_LearnerWith(spec.make_learner, cls, kwargs))
-    return spec
-
-
-def _is(value, types) -> bool:
-    return isinstance(value, types) and not isinstance(value, bool)
-
-
-def _learner_keys(cls: type) -> list[str]:
-    """Named constructor arguments of a learner class after ``(graph, n_learners)``."""
-    params = list(inspect.signature(cls.__init__).parameters.values())[3:]  # self, graph, n
-    named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    return [p.name for p in params if p.kind in named]
-
-
-class _LearnerWith:
-    """``make_learner`` whose construction of ``cls`` gets ``kwargs`` (see ``with_overrides``)."""
-
-    def __init__(self, make_learner, cls: type, kwargs: dict) -> None:
-        self.make_learner, self.cls, self.kwargs = make_learner, cls, kwargs
-
-    def __call__(self, graph, n_learners):
-        cls, kwargs = self.cls, self.kwargs
-        original = cls.__init__
-        signature = inspect.signature(original)
-
-        def init(obj, *args, **kw):
-            if type(obj) is cls:  # not a subclass calling super().__init__
-                bound = signature.bind(obj, *args, **kw)
-                bound.arguments.update(kwargs)
-                args, kw = bound.args[1:], bound.kwargs
-            original(obj, *args, **kw)
-
-        with _replaced_init(cls, init):
-            learner = self.make_learner(graph, n_learners)
-        if type(learner) is not cls:
-            raise TypeError(f"make_learner built a {type(learner).__name__}, not a {cls.__name__}")
-        return learner
-
-
-@contextmanager
-def _replaced_init(cls: type, init):
-    """``cls.__init__`` is ``init`` within the block (restored, also when it was inherited)."""
-    own = vars(cls).get("__init__")
-    cls.__init__ = init
-    try:
-        yield
-    finally:
-        if own is None:
-            del cls.__init__
-        else:
-            cls.__init__ = own
 
 
 # ---------------------------------------------------------------------- the sweep
@@ -255,8 +129,9 @@ def run_sweep(
     resume: bool = False,
     metric: str | None = None,
     name: str | None = None,
+    in_process: bool = False,
 ) -> list[dict]:
-    """Run every configuration of ``grid`` as one Ray Tune trial; rank them.
+    """Run every configuration of ``grid`` as one Ray Tune trial (or here, in turn); rank them.
 
     Args:
         domain_name: a registered domain (import ``agents`` or a plugin first).
@@ -273,6 +148,9 @@ def run_sweep(
         metric: the ``summary.json`` per-seed key to rank by, higher is better (default:
             ``final_eval_return``, or ``final_eval_throughput`` on continuing domains).
         name: the sweep folder's name (default ``{domain}__{algo}__sweep``).
+        in_process: no Ray: the trials run one after another in this process, into the same
+            folders (resume reuses the finished ones; a signal stops the sweep, the trials
+            left are ``unfinished``).
 
     Returns:
         The rows of ``rank`` (also written to ``sweep.csv`` and ``sweep.md``): per
@@ -288,7 +166,13 @@ def run_sweep(
     )
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
-
+    if in_process:
+        if address is not None:
+            raise ValueError("--in-process runs no Ray: it takes no --address")
+        results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir)
+        rows = rank(configs, results, metric)
+        write_table(rows, list(grid), metric, sweep_dir)
+        return rows
     ray, tune = _import_ray()
     started = not ray.is_initialized()
     if started:
@@ -304,11 +188,12 @@ def run_sweep(
 
 
 def _check_configurations(spec: AlgoSpec, configs: list[dict]) -> None:
-    """Build every configuration's learner once: a bad key or value is a ``ValueError``."""
+    """Build every configuration's learner and exploration once: bad ones are ``ValueError``."""
     for config in configs:
         changed = with_overrides(spec, config)
         try:
             changed.make_learner(changed.make_graph(), 1)
+            changed.make_exploration(changed.train)
         except (TypeError, ValueError) as err:
             raise ValueError(f"configuration {label(config)}: {err}") from None
 
@@ -316,11 +201,11 @@ def _check_configurations(spec: AlgoSpec, configs: list[dict]) -> None:
 def _check_folder(sweep_dir: Path, request: dict, resume: bool) -> None:
     """Record the request in ``sweep.json``; a started sweep needs ``resume`` and the same one.
 
-    A sweep has started once Tune made its folder (``tune/``); a folder that only holds the
-    ``sweep.json`` of a sweep that never reached Ray is reused.
+    A sweep has started once Tune made its folder (``tune/``) or a trial its folder; a folder
+    that only holds the ``sweep.json`` of a sweep that never reached a trial is reused.
     """
     recorded = sweep_dir / "sweep.json"
-    if (sweep_dir / "tune").exists():
+    if sweep_dir.is_dir() and any(p.is_dir() for p in sweep_dir.iterdir()):
         if not resume:
             raise ValueError(
                 f"{sweep_dir} holds a sweep: pass --resume to continue it or --name for a new one"
@@ -431,21 +316,56 @@ def _trial_dirname(trial) -> str:
 
 
 def _trial(config: dict, domain, algo, seeds, steps, metric, root) -> None:
-    """One trial (in a Ray worker): a population run into ``root/<label>/``; report the metric.
-
-    A run left unfinished by an earlier attempt of this trial is removed; a finished one is
-    reported again rather than rerun.
-    """
+    """One trial in a Ray worker: ``trial_report``, reported to Tune."""
     from ray import tune
 
-    spec = with_overrides(domain.algos[algo], config)
-    domain = dataclasses.replace(domain, algos={**domain.algos, algo: spec})
+    report = trial_report(config, domain, algo, seeds, steps, metric, root)
+    report.pop("status")
+    tune.report(report)
+
+
+@dataclasses.dataclass
+class TrialResult:
+    """What ``rank`` reads of a trial (the fields of Tune's ``Result`` it uses)."""
+
+    config: dict
+    metrics: dict
+    error: Exception | None = None
+
+
+def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path):
+    """Every configuration's trial in turn, here; an interrupted trial ends the sweep."""
+    results = []
+    for config in configs:
+        try:
+            report = trial_report(config, domain, algo, seeds, steps, metric, sweep_dir)
+        except Exception as err:  # recorded in its row, as Tune records an errored trial
+            results.append(TrialResult(config, {}, err))
+            continue
+        if report.pop("status") != "finished":
+            break  # a signal stopped the run: it and the trials after it stay unfinished
+        results.append(TrialResult(config, report))
+    return results
+
+
+def trial_report(config: dict, domain, algo, seeds, steps, metric, root) -> dict:
+    """One trial: a population run into ``root/<label>/``; its metric's mean and per seed.
+
+    A run left unfinished by an earlier attempt of this trial is removed; a finished one is
+    reported again rather than rerun. The settings reach the run as ``RunOptions.settings``
+    (``with_overrides``; its checkpoint records them, so ``train --resume`` continues it).
+    """
     trial_dir = Path(root) / label(config)
     done = _finished_run(trial_dir)
     if done is None:
         shutil.rmtree(trial_dir, ignore_errors=True)
         opts = RunOptions(
-            seeds=seeds, steps=steps, out=str(trial_dir), progress=False, check_env=False
+            seeds=seeds,
+            steps=steps,
+            out=str(trial_dir),
+            progress=False,
+            check_env=False,
+            settings=dict(config),
         )
         run_dir, summary = run_experiment(domain, algo, opts)
     else:
@@ -458,7 +378,7 @@ def _trial(config: dict, domain, algo, seeds, steps, metric, root) -> None:
     mean, half = mean_ci95(np.array(values, dtype=float)[:, None])
     report = {metric: float(mean[0]), "ci95": float(half[0]), "run_dir": str(run_dir)}
     report.update({f"seed_{s}": float(v) for s, v in zip(seeds, values, strict=True)})
-    tune.report(report)
+    return {**report, "status": summary["status"]}
 
 
 def _finished_run(trial_dir: Path) -> tuple[Path, dict] | None:
@@ -560,6 +480,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         steps=args.steps,
         resume=args.resume,
         name=args.name,
+        in_process=args.in_process,
     )
     sweep_dir = Path(args.out) / (args.name or f"{args.domain}__{args.algo}__sweep")
     print((sweep_dir / "sweep.md").read_text(), end="")
