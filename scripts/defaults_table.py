@@ -138,7 +138,7 @@ def run(case: Case, setting: Setting, seeds: list[int], budget_scale: float = 1.
     steps = int(case.budgets[setting.algo] * budget_scale)
     spec = replace(
         base,
-        make_learner=setting.learner(case.gamma),
+        learner=setting.learner(case.gamma),
         train=TrainConfig(
             steps=steps,
             eval_every=steps // 16,

@@ -80,8 +80,8 @@ def _variant(a: argparse.Namespace):
     base = _team_hierarchy if a.team_root else T.trash_hierarchy
     spec = replace(
         dom.algos[a.algo],
-        make_learner=learner,
-        make_exploration=lambda c: EpsilonGreedy(Linear(0.5, 0.02, int(c.steps * a.eps_frac))),
+        learner=learner,
+        exploration=lambda c: EpsilonGreedy(Linear(0.5, 0.02, int(c.steps * a.eps_frac))),
         executor=ExecutorConfig(record_visited=a.visited),
     )
     if a.algo == "cooperative":

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.config import Make
 from hrl_torch.env import BatchedEnv
 from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.trainer import TrainConfig
@@ -92,16 +93,12 @@ def make_env(seeds, envs_per_learner, backend="torch"):
     return CorridorEnv(seeds, envs_per_learner)
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 2))
-
-
 def algo(make_graph, learner_class, description: str) -> AlgoSpec:
     """One algorithm: its graph and learner; the budget and exploration are shared."""
     return AlgoSpec(
         make_graph=make_graph,
-        make_learner=lambda g, n: learner_class(g, n, alpha=0.5, gamma=1.0),
-        make_exploration=_epsilon,
+        learner=Make(learner_class, alpha=0.5, gamma=1.0),
+        exploration=linear_epsilon(1.0, 0.05, 0.5),  # 1 -> 0.05 over the first half
         # the optimal greedy return over the evaluation episodes is about -0.5
         train=TrainConfig(steps=3_000, eval_every=500, eval_episodes=20, threshold=-1),
         envs_per_learner=8,

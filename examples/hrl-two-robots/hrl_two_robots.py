@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.config import Make
 from hrl_torch.experiment import DomainSpec, algo_family
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
@@ -93,17 +94,9 @@ def make_env(seeds, envs_per_learner, backend="torch"):
     return TwoRobotsEnv(seeds, envs_per_learner)
 
 
-def _epsilon(config: TrainConfig) -> EpsilonGreedy:
-    return EpsilonGreedy(Linear(1.0, 0.05, config.steps // 2))
-
-
-def _maxq(graph: TaskGraph, table_sets: int) -> MaxQLearner:
-    return MaxQLearner(graph, table_sets, alpha=0.3, gamma=1.0, init=-10.0)
-
-
 spec = algo_family(
-    make_learner=_maxq,
-    make_exploration=_epsilon,
+    learner=Make(MaxQLearner, alpha=0.3, gamma=1.0, init=-10.0),
+    exploration=linear_epsilon(1.0, 0.05, 0.5),  # 1 -> 0.05 over the first half of the budget
     train=TrainConfig(steps=12_000, eval_every=2_000, eval_episodes=50, threshold=-5.0),
     envs_per_learner=16,
 )
