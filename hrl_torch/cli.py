@@ -245,7 +245,6 @@ def _train_options(args: argparse.Namespace):
     """
     from hrl_torch import registry
     from hrl_torch.checkpoint import CheckpointError, load_checkpoint
-    from hrl_torch.config import parse_settings
     from hrl_torch.experiment import RunOptions, check_choice
 
     given = {
@@ -263,12 +262,8 @@ def _train_options(args: argparse.Namespace):
         first, n = args.seed_offset or 0, args.seeds or 5
         given["seeds"] = list(range(first, first + n))
     given = {k: v for k, v in given.items() if v is not None}
-    try:  # --set: the names the sweep takes, checked against the algorithm below
-        settings = parse_settings(args.set)
-    except ValueError as err:
-        raise UserError.of(err) from err
-    if settings:
-        given["settings"] = settings
+    settings = _parsed_settings(args.set)  # --set: the names the sweep takes
+    given |= {"settings": settings} if settings else {}
     display = {
         "progress": not args.no_progress,
         "tensorboard": not args.no_tensorboard,
@@ -301,6 +296,16 @@ def _train_options(args: argparse.Namespace):
         raise UserError.of(err) from err
     _check_writable_folder(out, "--out")
     return domain, args.algo, opts
+
+
+def _parsed_settings(items: list[str]) -> dict:
+    """``--set NAME=VALUE`` items by name (a malformed item: one line)."""
+    from hrl_torch.config import parse_settings
+
+    try:
+        return parse_settings(items)
+    except ValueError as err:
+        raise UserError.of(err) from err
 
 
 def _check_settings(spec, settings: dict) -> None:

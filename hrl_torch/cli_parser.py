@@ -137,15 +137,20 @@ def _train_parser(sub) -> argparse.ArgumentParser:
     train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
+    _add_set(train)
+    return train
+
+
+def _add_set(train: argparse.ArgumentParser) -> None:
+    """``train --set NAME=VALUE`` (``hrl_torch.config.parse_settings`` reads it)."""
     train.add_argument(
         "--set",
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="change one setting, e.g. learner.alpha=0.2 or exploration.epsilon.end=0.01 "
-        "(repeatable; the names `hrl-torch sweep --grid` takes)",
+        help="one setting, e.g. learner.alpha=0.2 or exploration.epsilon.end=0.01 (repeatable; "
+        "the names of sweep --grid)",
     )
-    return train
 
 
 def add_sweep_parser(sub) -> argparse.ArgumentParser:

@@ -161,30 +161,33 @@ def run_sweep(
         ValueError: a user error (unknown domain, algorithm or key, bad value, the folder,
             Ray missing), before Ray starts; or no connection to the cluster at ``address``.
     """
+    if in_process and address is not None:
+        raise ValueError("--in-process runs no Ray: it takes no --address")
     domain, seeds, metric, request, configs = _checked_request(
         domain_name, algo, grid, seeds, steps, metric
     )
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
     if in_process:
-        if address is not None:
-            raise ValueError("--in-process runs no Ray: it takes no --address")
         results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir)
-        rows = rank(configs, results, metric)
-        write_table(rows, list(grid), metric, sweep_dir)
-        return rows
+    else:
+        results = _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address)
+    rows = rank(configs, results, metric)
+    write_table(rows, list(grid), metric, sweep_dir)
+    return rows
+
+
+def _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address):
+    """Tune's results, on a local Ray started here (and stopped) or the cluster at ``address``."""
     ray, tune = _import_ray()
     started = not ray.is_initialized()
     if started:
         _start_ray(ray, address, _worker_path(domain))
     try:
-        results = _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir, resume)
+        return _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir, resume)
     finally:
         if started:
             ray.shutdown()
-    rows = rank(configs, results, metric)
-    write_table(rows, list(grid), metric, sweep_dir)
-    return rows
 
 
 def _check_configurations(spec: AlgoSpec, configs: list[dict]) -> None:
