@@ -174,15 +174,15 @@ def step_cost(obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
     return -torch.ones(action.shape[0], device=action.device)
 
 
-def _stack(obs: TensorDict, name: str) -> torch.Tensor:
+def station_fields(obs: TensorDict, name: str) -> torch.Tensor:
     """``[B, 4]``: the fields ``name_1 .. name_4``."""
     return torch.stack([obs[f"{name}_{k}"] for k in range(1, N_STATIONS + 1)], -1)
 
 
 def job_available(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
     """``[B, 8]`` bool: which of ``DM_1..4, DA_1..4`` an empty AGV can start now."""
-    material = (_stack(obs, "warehouse") > 0) & (_stack(obs, "drop_off") < capacity)
-    return torch.cat([material, _stack(obs, "pick_up") > 0], -1)
+    material = (station_fields(obs, "warehouse") > 0) & (station_fields(obs, "drop_off") < capacity)
+    return torch.cat([material, station_fields(obs, "pick_up") > 0], -1)
 
 
 def root_abstract(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
@@ -443,7 +443,7 @@ class DispatchRule:
             age = torch.cat([bay_age, pick_age.gather(2, next_item).squeeze(2)], -1)
             distance = self.dist[loc[:, j]][:, self.load_at]
             primary, second = self.keys(queue.float(), age, distance.float())
-            best = _lexicographic_argmax(open_, primary, second)
+            best = lexicographic_argmax(open_, primary, second)
             free = acting[:, j] & empty[:, j] & (job[:, j] == NO_JOB)
             job[:, j] = torch.where(free, best, job[:, j])
         self.job = job
@@ -457,7 +457,7 @@ class DispatchRule:
         return action.reshape(-1)
 
 
-def _lexicographic_argmax(
+def lexicographic_argmax(
     allowed: torch.Tensor, primary: torch.Tensor, second: torch.Tensor
 ) -> torch.Tensor:
     """``[B]``: the allowed column with the highest ``primary`` (ties: ``second``, then index).

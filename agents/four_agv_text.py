@@ -47,14 +47,14 @@ from agents.four_agv import (
     NAV_TARGETS,
     NO_JOB,
     Navigate,
-    _lexicographic_argmax,
-    _stack,
     algo_spec,
     da_states,
     dm_states,
     flat_graph,
+    lexicographic_argmax,
     maxq_learner,
     primitives,
+    station_fields,
     step_cost,
 )
 from envs.four_agv import (
@@ -93,8 +93,8 @@ COOPERATION = Cooperation((("Root",),))
 
 def root_abstract(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
     """Root state in ``[0, 1296)``: per station, part ready x level of ``Pi`` (3 levels)."""
-    ready = (_stack(obs, "warehouse") > 0) & (_stack(obs, "drop_off") < capacity)
-    pick = _stack(obs, "pick_up")
+    ready = (station_fields(obs, "warehouse") > 0) & (station_fields(obs, "drop_off") < capacity)
+    pick = station_fields(obs, "pick_up")
     level = (pick > 0).long() + (pick >= capacity).long()  # 0 empty, 1 partly, 2 full
     code = ready.long() * 3 + level
     weights = STATION_CODES ** torch.arange(N_STATIONS, device=code.device)
@@ -285,7 +285,7 @@ class PerAGVRule:
             distance.reshape(rows, -1),
         )
         allowed = open_[:, None].expand(b, n, -1).reshape(rows, -1)
-        best = _lexicographic_argmax(allowed, primary, second).view(b, n)
+        best = lexicographic_argmax(allowed, primary, second).view(b, n)
         job = torch.where(acting & empty & (job == NO_JOB), best, job)
         base.job = job
 

@@ -84,6 +84,7 @@ from functools import lru_cache
 
 import torch
 
+from envs import agv_common as common
 from hrl_torch.env import BatchedEnv
 from hrl_torch.ops import one_hot_mask
 
@@ -125,44 +126,17 @@ def successors() -> torch.Tensor:
 
 def station_of(locations: Sequence[int]) -> torch.Tensor:
     """``[33]`` long: ``i`` at ``locations[i]``, -1 elsewhere."""
-    table = torch.full((N_LOCATIONS,), -1, dtype=torch.long)
-    table[list(locations)] = torch.arange(len(locations))
-    return table
+    return common.station_of(N_LOCATIONS, locations)
 
 
 @lru_cache(maxsize=1)
 def shortest_paths() -> tuple[torch.Tensor, torch.Tensor]:
-    """Shortest routes between locations.
-
-    Returns:
-        ``(distance, first_move)``, both ``[33, 33]`` long indexed ``[from, to]``: the number of
-        moves on a shortest path and its first move (``FORWARD``/``TURN``; 0 where equal).
-    """
-    succ = successors().tolist()
-    dist = torch.zeros(N_LOCATIONS, N_LOCATIONS, dtype=torch.long)
-    move = torch.zeros(N_LOCATIONS, N_LOCATIONS, dtype=torch.long)
-    for target in range(N_LOCATIONS):  # backward breadth-first search from each target
-        best = {target: 0}
-        frontier = [target]
-        while frontier:
-            nxt = []
-            for node in range(N_LOCATIONS):
-                if node in best:
-                    continue
-                for m, s in enumerate(succ[node]):
-                    if s != node and s in frontier:
-                        best[node] = best[s] + 1
-                        move[node, target] = m
-                        nxt.append(node)
-                        break
-            frontier = nxt
-        for node, d in best.items():
-            dist[node, target] = d
-    return dist, move
+    """``(distance, first_move)`` ``[33, 33]`` (``[from, to]``; ``envs.agv_common``)."""
+    return common.shortest_paths(successors())
 
 
 # -- flat state index
-_RADICES = (N_LOCATIONS, N_STATUS, *([CAPACITY + 1] * 2 * N_STATIONS), *([2] * N_STATIONS))
+_RADICES = common.radices(N_LOCATIONS, N_STATIONS, CAPACITY)
 
 
 def encode(location, status, drop_off, pick_up, warehouse) -> torch.Tensor:
@@ -175,29 +149,12 @@ def encode(location, status, drop_off, pick_up, warehouse) -> torch.Tensor:
         pick_up: ``[..., 3]`` in ``[0, 3)``.
         warehouse: ``[..., 3]`` in ``{0, 1}``.
     """
-    digits = [location, status, *drop_off.unbind(-1), *pick_up.unbind(-1), *warehouse.unbind(-1)]
-    index = torch.zeros_like(torch.as_tensor(location), dtype=torch.long)
-    for digit, radix in zip(digits, _RADICES, strict=True):
-        index = index * radix + torch.as_tensor(digit).long()
-    return index
+    return common.encode(_RADICES, location, status, drop_off, pick_up, warehouse)
 
 
 def decode(index: torch.Tensor) -> dict[str, torch.Tensor]:
     """Observation fields of flat state indices (any shape)."""
-    index = index.long()
-    digits = []
-    rest = index
-    for radix in reversed(_RADICES):
-        digits.append(rest % radix)
-        rest = rest // radix
-    digits.reverse()
-    fields = {"observation": index, "location": digits[0], "status": digits[1]}
-    n = N_STATIONS
-    for i in range(n):
-        fields[f"drop_off_{i + 1}"] = digits[2 + i]
-        fields[f"pick_up_{i + 1}"] = digits[2 + n + i]
-        fields[f"warehouse_{i + 1}"] = digits[2 + 2 * n + i]
-    return fields
+    return common.decode(_RADICES, index)
 
 
 # -- model parameters

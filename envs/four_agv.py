@@ -126,6 +126,7 @@ from functools import lru_cache
 
 import torch
 
+from envs import agv_common as common
 from envs.agv import AGVRewards
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
 from hrl_torch.ops import one_hot_mask
@@ -188,51 +189,23 @@ def successors() -> torch.Tensor:
 
 def station_of(locations: Sequence[int]) -> torch.Tensor:
     """``[100]`` long: ``i`` at ``locations[i]``, -1 elsewhere."""
-    table = torch.full((N_LOCATIONS,), -1, dtype=torch.long)
-    table[list(locations)] = torch.arange(len(locations))
-    return table
+    return common.station_of(N_LOCATIONS, locations)
 
 
 @lru_cache(maxsize=1)
 def shortest_paths() -> tuple[torch.Tensor, torch.Tensor]:
-    """Shortest routes between locations.
+    """``(distance, first_move)`` ``[100, 100]`` (``[from, to]``; ``envs.agv_common``).
 
-    Returns:
-        ``(distance, first_move)``, both ``[100, 100]`` long indexed ``[from, to]``: the number
-        of moves on a shortest path and its first move (``FORWARD``/``LEFT``/``RIGHT``, the
-        first in that order among equally short ones; 0 where from == to).
+    The first move is ``FORWARD``/``LEFT``/``RIGHT``, the first in that order among equally
+    short ones; the layout must be strongly connected.
     """
-    succ = successors()
-    into: list[list[int]] = [[] for _ in range(N_LOCATIONS)]  # predecessors
-    for node, row in enumerate(succ.tolist()):
-        for s in set(row) - {node}:
-            into[s].append(node)
-    far = N_LOCATIONS + 1
-    dist = torch.full((N_LOCATIONS, N_LOCATIONS), far, dtype=torch.long)
-    for target in range(N_LOCATIONS):  # backward breadth-first search from each target
-        dist[target, target] = 0
-        frontier = [target]
-        while frontier:
-            nxt = []
-            for s in frontier:
-                for node in into[s]:
-                    if dist[node, target] == far:
-                        dist[node, target] = dist[s, target] + 1
-                        nxt.append(node)
-            frontier = nxt
-    if bool((dist >= far).any()):
-        raise RuntimeError("the four-AGV layout is not strongly connected")
-    # the first move (in action order) whose successor is one move closer
-    closer = dist[succ] == (dist[:, None, :] - 1)  # [from, move, to]
-    closer &= succ[:, :, None] != torch.arange(N_LOCATIONS)[:, None, None]
-    move = closer.long().argmax(1)
-    return dist, move
+    return common.shortest_paths(successors())
 
 
 # -- flat single-agent state index
 def radices(capacity: int = CAPACITY) -> tuple[int, ...]:
     """Radices of the flat state: location, status, 8 buffers, 4 warehouse bits."""
-    return (N_LOCATIONS, N_STATUS, *([capacity + 1] * 2 * N_STATIONS), *([2] * N_STATIONS))
+    return common.radices(N_LOCATIONS, N_STATIONS, capacity)
 
 
 def n_flat_states(capacity: int = CAPACITY) -> int:
@@ -251,10 +224,7 @@ def encode(location, status, drop_off, pick_up, warehouse, capacity: int = CAPAC
         warehouse: ``[..., 4]`` in ``{0, 1}``.
         capacity: buffer capacity ``c``.
     """
-    buffers = torch.cat([drop_off, pick_up, warehouse], -1).long()
-    weights = place_values(capacity).to(buffers.device)
-    agent = location.long() * weights[0] + status.long() * weights[1]
-    return agent + (buffers * weights[2:]).sum(-1)
+    return common.encode(radices(capacity), location, status, drop_off, pick_up, warehouse)
 
 
 @lru_cache(maxsize=8)
@@ -266,18 +236,7 @@ def place_values(capacity: int = CAPACITY) -> torch.Tensor:
 
 def decode(index: torch.Tensor, capacity: int = CAPACITY) -> dict[str, torch.Tensor]:
     """Observation fields (``location``, ``status``, the buffers) of flat indices (any shape)."""
-    rest, digits = index.long(), []
-    for radix in reversed(radices(capacity)):
-        digits.append(rest % radix)
-        rest = rest // radix
-    digits.reverse()
-    fields = {"observation": index.long(), "location": digits[0], "status": digits[1]}
-    n = N_STATIONS
-    for i in range(n):
-        fields[f"drop_off_{i + 1}"] = digits[2 + i]
-        fields[f"pick_up_{i + 1}"] = digits[2 + n + i]
-        fields[f"warehouse_{i + 1}"] = digits[2 + 2 * n + i]
-    return fields
+    return common.decode(radices(capacity), index)
 
 
 # -- model parameters

@@ -24,7 +24,7 @@ __version__ = "0.1.0"
 def __getattr__(name: str):
     if name not in _EXPORTS:
         raise AttributeError(f"module 'hrl_torch' has no attribute {name!r}")
-    return getattr(importlib.import_module(_EXPORTS[name]), name)
+    return vars(importlib.import_module(_EXPORTS[name]))[name]
 
 
 def __dir__() -> list[str]:

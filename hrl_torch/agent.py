@@ -69,7 +69,7 @@ class FrozenValues:
         owner = torch.arange(learner.n_learners, device=device).repeat_interleave(n_states)
         obs = graph.table_observations.to(device)[states]  # (every field, for ``ctx.obs``)
         ctx = graph.context(obs, owner)
-        learner.evaluate(ctx)
+        learner.evaluate_checked(ctx)
         self.values = ctx.values
         self.n_states = n_states
 
@@ -217,7 +217,7 @@ class HierarchicalAgent:
         if self.frozen is not None:
             self.frozen.fill(ctx)
         else:
-            self.learner.evaluate(ctx)
+            self.learner.evaluate_checked(ctx)
         self.ctx = ctx
         return ctx
 
@@ -242,7 +242,7 @@ class HierarchicalAgent:
 
     def update(self, batch: TensorDict) -> None:
         """Step 5: learn from one step's transitions; the clock advances by ``E``."""
-        self.learner.update(batch, self.clock)
+        self.learner.update_checked(batch, self.clock)
         self.clock += self.executor.envs_per_learner
 
     def step(self, td: TensorDict) -> torch.Tensor:

@@ -20,18 +20,42 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.transitions import ChoosesAll, SelectsRows
+
 
 class SameDraws:
-    """A policy that chooses with the random numbers already drawn at this step."""
+    """``policy`` choosing with the random numbers already drawn at this step.
+
+    It has the capabilities ``policy`` has (``same_draws`` picks the class): ``choose_all``
+    answers ``None`` (choose level by level) where ``policy`` cannot choose all at once.
+    """
 
     def __init__(self, policy) -> None:
-        self._policy = policy
+        self.policy = policy
 
     def new_step(self) -> None:
         """Keep this step's draw (the choice is made again, not a new choice)."""
 
-    def __getattr__(self, name):
-        return getattr(self._policy, name)
+    def select(self, inst, ctx, available, step: int, push: int):
+        """``policy``'s choice."""
+        return self.policy.select(inst, ctx, available, step, push)
+
+    def choose_all(self, ctx, step: int):
+        """``policy``'s choices for every chooser, or ``None``."""
+        return self.policy.choose_all(ctx, step) if isinstance(self.policy, ChoosesAll) else None
+
+
+class SameDrawsRows(SameDraws):
+    """``SameDraws`` of a policy that can choose for some rows only (``SelectsRows``)."""
+
+    def select_rows(self, inst, ctx, available, step: int, push: int, rows):
+        """``policy``'s choice for the rows ``rows``."""
+        return self.policy.select_rows(inst, ctx, available, step, push, rows)
+
+
+def same_draws(policy) -> SameDraws:
+    """``policy`` choosing again with this step's draws, with the capabilities it has."""
+    return SameDrawsRows(policy) if isinstance(policy, SelectsRows) else SameDraws(policy)
 
 
 
@@ -89,7 +113,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = agent.context(_with_codes(agent, rows, codes))
-        action = ex.act(ctx, SameDraws(agent.policy), agent.clock)
+        action = ex.act(ctx, same_draws(agent.policy), agent.clock)
         invoked = torch.where(redo[:, None], ex.invoked, invoked)
         used = codes
     ex.invoked = invoked

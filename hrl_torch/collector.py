@@ -68,7 +68,7 @@ TRANSITIONS = "transitions"
 def _fields(env: BatchedEnv) -> dict[str, torch.Tensor]:
     """The fields of the domain's step outputs, with their shapes and dtypes (no reset)."""
     b, dev = env.batch_size, env.device
-    fields = dict(env._observe())
+    fields = dict(env.observation())
     fields.update(
         reward=torch.zeros(b, device=dev),
         duration=torch.zeros(b, device=dev),

@@ -219,7 +219,7 @@ def greedy_table(learner, observations: TensorDict, learner_index: int = 0) -> t
     n = observations.batch_size[0]
     rows = torch.full((n,), learner_index, dtype=torch.long)
     ctx = g.context(observations, rows)
-    learner.evaluate(ctx)
+    learner.evaluate_checked(ctx)
     table = torch.zeros(g.n_instances, int(g.node_n_states.max()), dtype=torch.long)
     for inst in range(g.n_instances):
         node = int(g.inst_node[inst])

@@ -58,7 +58,7 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
     def quiet_again() -> None:  # the guard's quiet window anew, at a read the trainer makes
         if executor.depth > 1:  # (an invocation's steps grow by at most one per step)
             longest = int(executor.stack.inv_steps[:, 1:].amax())
-            executor._guard_quiet = max(limit - longest - 1, 0)
+            executor.guard_quiet = max(limit - longest - 1, 0)
 
     def out_of_range(row: int, saved: dict) -> Exception:
         col = int(saved["cols"][row].nonzero()[0])
@@ -74,7 +74,7 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
     checks = [executor.deferred_bad, executor.deferred_stuck, executor.deferred_timeout]
     checks.append(g.deferred_ranges)
     # a new executor's invocations have run no step: none reaches the guard for limit - 1
-    executor._guard_quiet = max(executor._guard_quiet, limit - 1)
+    executor.guard_quiet = max(executor.guard_quiet, limit - 1)
     if isinstance(env, BatchedEnv) and env.n_actions is not None:  # (overrides of the
         # env's own action check that skip ``BatchedEnv``'s keep checking at once)
         checks.append(env.defer_checks())

@@ -62,6 +62,14 @@ def holds_tensor(value, depth: int = 0) -> bool:
 _NOT_HELPERS = (types.FunctionType, types.MethodType, type, torch.nn.Module)
 
 
+def attributes_of(obj) -> dict | None:
+    """``vars(obj)``, or ``None`` for an object without instance attributes (a number, a tuple)."""
+    try:
+        return vars(obj)
+    except TypeError:
+        return None
+
+
 def move_attributes(obj, fn, depth: int = 0) -> None:
     """Apply ``fn`` to the tensors among ``obj``'s attributes, in place (a plain helper object).
 
@@ -71,7 +79,7 @@ def move_attributes(obj, fn, depth: int = 0) -> None:
     for key, inner in vars(obj).items():
         if holds_tensor(inner):
             setattr(obj, key, apply_to_tensors(fn, inner))
-        elif depth < 2 and hasattr(inner, "__dict__") and not isinstance(inner, _NOT_HELPERS):
+        elif depth < 2 and attributes_of(inner) is not None and not isinstance(inner, _NOT_HELPERS):
             move_attributes(inner, fn, depth + 1)
 
 

@@ -22,7 +22,13 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from hrl_torch.devices import DeferredCheck, apply_to_tensors, holds_tensor, move_attributes
+from hrl_torch.devices import (
+    DeferredCheck,
+    apply_to_tensors,
+    attributes_of,
+    holds_tensor,
+    move_attributes,
+)
 from hrl_torch.rng import BatchRNG
 
 
@@ -89,6 +95,19 @@ class BatchedEnv:
 
     def _observe(self) -> dict[str, torch.Tensor]:
         raise NotImplementedError
+
+    # -- the hooks as adapters call them (TorchRL, PettingZoo, collectors): no counters, no checks
+    def observation(self) -> dict[str, torch.Tensor]:
+        """Every row's observation fields now (``_observe``)."""
+        return self._observe()
+
+    def reset_rows(self, mask: torch.Tensor) -> None:
+        """New episodes in the rows ``mask`` (``_reset_rows``; ``elapsed`` and ``done`` kept)."""
+        self._reset_rows(mask)
+
+    def step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One step of every row (``_step_all``): ``(reward, duration, terminated)`` ``[B]``."""
+        return self._step_all(action)
 
     # -- public API
     def reset(self) -> TensorDict:
@@ -207,7 +226,7 @@ class BatchedEnv:
         """
         sub = copy.copy(self)
         for key in self.state_keys:
-            setattr(sub, key, getattr(self, key)[rows])
+            setattr(sub, key, vars(self)[key][rows])
         sub.elapsed, sub.done = self.elapsed[rows], self.done[rows]
         sub.rng = self.rng.subset(rows)
         sub.batch_size = int(rows.shape[0])
@@ -219,7 +238,7 @@ class BatchedEnv:
 
     def state_dict(self) -> dict:
         """Every tensor and counter needed to continue exactly."""
-        state = {k: getattr(self, k).clone() for k in self.state_keys}
+        state = {k: vars(self)[k].clone() for k in self.state_keys}
         state.update(
             elapsed=self.elapsed.clone(), done=self.done.clone(), rng=self.rng.state_dict()
         )
@@ -235,7 +254,7 @@ class BatchedEnv:
             )
         for k in (*self.state_keys, "elapsed", "done"):
             value = state[k]
-            current = getattr(self, k)
+            current = vars(self)[k]
             if value.shape != current.shape:
                 raise ValueError(
                     f"env state {k!r}: shape {tuple(value.shape)} != {tuple(current.shape)}"
@@ -249,6 +268,6 @@ def _plain_helper(value) -> bool:
     owned = type(value).__module__.split(".")[0] in ("envs", "agents", "hrl_torch")
     return (
         owned
-        and hasattr(value, "__dict__")
+        and attributes_of(value) is not None
         and not isinstance(value, (type, nn.Module, BatchRNG, BatchedEnv))
     )

@@ -138,7 +138,7 @@ class HierarchicalExecutor:
         self.levels = torch.arange(self.depth, **long)
         self.rows = torch.arange(batch_size, **long)
         self.score_width = score_width
-        self._guard_quiet = 0  # steps during which no invocation can reach the guard
+        self.guard_quiet = 0  # steps during which no invocation can reach the guard
         self.stack = TaskStack.empty(
             graph, batch_size, max(self.config.record_visited, 1), score_width
         )
@@ -225,7 +225,7 @@ class HierarchicalExecutor:
     @stack.setter
     def stack(self, stack: TaskStack) -> None:
         self._stack, self._fields = stack, stack.tensors()
-        self._guard_quiet = 0  # stacks from elsewhere: check the guard at the next step
+        self.guard_quiet = 0  # stacks from elsewhere: check the guard at the next step
 
     def _replace(self, fields: dict) -> None:
         """Take ``fields`` (new tensors, the old ones untouched) as the stacks."""
@@ -239,7 +239,7 @@ class HierarchicalExecutor:
     def reset(self) -> None:
         """Empty every stack (all rows start at the root on the next ``act``)."""
         self.stack = self.stack.cleared()
-        self._guard_quiet = self.config.max_subtask_steps - 1  # (no invocation has run yet)
+        self.guard_quiet = self.config.max_subtask_steps - 1  # (no invocation has run yet)
 
     # ------------------------------------------------------------------ acting
     def act(self, ctx: StepContext, policy: Policy, step: int) -> torch.Tensor:
@@ -461,8 +461,8 @@ class HierarchicalExecutor:
         cfg = self.config
         # an invocation's steps grow by at most one per step: after seeing the longest at m,
         # none can reach the guard for max - m - 1 steps (stale levels counted too)
-        if self._guard_quiet > 0:
-            self._guard_quiet -= 1
+        if self.guard_quiet > 0:
+            self.guard_quiet -= 1
             return None
         if self.deferred_timeout is not None and cfg.on_timeout == "raise":  # (no read)
             limit = cfg.max_subtask_steps
@@ -471,7 +471,7 @@ class HierarchicalExecutor:
             return None
         longest = f["inv_steps"][:, 1:].amax().tolist() if self.depth > 1 else 0
         if longest < cfg.max_subtask_steps:
-            self._guard_quiet = cfg.max_subtask_steps - longest - 1
+            self.guard_quiet = cfg.max_subtask_steps - longest - 1
             return None
         timeout = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
         if cfg.on_timeout == "raise" and bool(timeout.any()):

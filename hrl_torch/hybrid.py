@@ -55,6 +55,7 @@ class HybridLearner(Learner):
         monitor: nn.Module | None = None,
     ) -> None:
         super().__init__(graph, n_learners)
+        self.value_keys = (*value.value_keys, *pg.value_keys)
         pg_nodes = set((pg.node_group >= 0).nonzero().flatten().tolist())
         value_nodes = value.value_nodes()
         if value_nodes is None:  # a value learner of every node: those that are not PG's

@@ -52,12 +52,12 @@ from hrl_torch.agent import HierarchicalAgent, with_values
 from hrl_torch.broadcast import choose_in_order
 from hrl_torch.communication import CommunicationLevel
 from hrl_torch.executor import Choice, ExecutorConfig
-from hrl_torch.executor import as_choice as _as_choice
 from hrl_torch.exploration import Exploration
 from hrl_torch.graph import GraphError, StepContext, Subtask, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.multiagent_env import agent_rows
 from hrl_torch.rng import BatchRNG
+from hrl_torch.transitions import PricesChoices, as_choice
 
 Scheme = Literal["continue", "any", "all"]
 Broadcast = Literal["sequential", "simultaneous"]
@@ -341,7 +341,7 @@ class MultiAgentAgent(HierarchicalAgent):
     def set_policy(self, policy) -> None:
         """Act with ``policy`` (under tau_all wrapped so that finished agents wait)."""
         if self.communication is not None:
-            if not hasattr(policy, "choice_cost"):
+            if not isinstance(policy, PricesChoices):
                 raise ValueError("communication needs a value-based policy (ValuePolicy)")
             policy.choice_cost = self._com.choice_cost
         self.policy = _WaitPolicy(self, policy) if self.scheme == "all" else policy
@@ -504,7 +504,7 @@ class _WaitPolicy:
 
     def select(self, inst, ctx: StepContext, available, step: int, push: int) -> Choice:
         """The wrapped policy's choice, or ``wait`` for the agents that must wait."""
-        choice = _as_choice(self.policy.select(inst, ctx, available, step, push))
+        choice = as_choice(self.policy.select(inst, ctx, available, step, push))
         if push != self.level.depth:
             return choice
         n = self.agent.n_agents

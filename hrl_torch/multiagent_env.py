@@ -91,6 +91,26 @@ class MultiAgentBatchedEnv(BatchedEnv):
     def _observe_agents(self) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
+    def agent_observation(self) -> dict[str, torch.Tensor]:
+        """Every agent's own observation fields now, ``[B, n, ...]`` (``_observe_agents``)."""
+        return self._observe_agents()
+
+    def restart_rows(self, mask: torch.Tensor) -> TensorDict:
+        """New episodes in the rows ``mask`` (all their agents act); the other rows unchanged.
+
+        Returns every row's fields, ``mask`` as ``is_init`` (a partial ``reset``).
+        """
+        m2 = mask[:, None]
+        self._reset_rows(mask)
+        self.elapsed = torch.where(mask, 0, self.elapsed)
+        self.done = self.done & ~mask
+        self.acting = self.acting | m2
+        self.pending_reward = torch.where(m2, 0.0, self.pending_reward)
+        self.pending_time = torch.where(m2, 0.0, self.pending_time)
+        zero = torch.zeros(self.batch_size, device=self.device)
+        false = torch.zeros(self.batch_size, dtype=torch.bool, device=self.device)
+        return self._output(zero, zero, false, false, mask, torch.zeros_like(self.pending_time))
+
     # -- public API
     def reset(self) -> TensorDict:
         """Start a new episode in every row; every agent acts."""
@@ -217,7 +237,7 @@ class MultiAgentBatchedEnv(BatchedEnv):
         """Restore a ``state_dict``; shapes must match this env."""
         super().load_state_dict(state)
         for k in ("acting", "pending_reward", "pending_time"):
-            if state[k].shape != getattr(self, k).shape:
+            if state[k].shape != vars(self)[k].shape:
                 raise ValueError(f"env state {k!r}: shape {tuple(state[k].shape)} mismatch")
             setattr(self, k, state[k].to(self.device).clone())
 

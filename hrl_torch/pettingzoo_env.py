@@ -107,8 +107,8 @@ class _AgentView:
     """
 
     def __init__(self, env: MultiAgentBatchedEnv) -> None:
-        own = {k: v[0, 0].cpu().numpy() for k, v in env._observe_agents().items()}
-        shared = {k: v[0].cpu().numpy() for k, v in env._observe().items()}
+        own = {k: v[0, 0].cpu().numpy() for k, v in env.agent_observation().items()}
+        shared = {k: v[0].cpu().numpy() for k, v in env.observation().items()}
         clash = sorted(set(own) & set(shared))
         if clash:
             raise ValueError(f"agent and shared observation fields share the names {clash}")

@@ -67,9 +67,10 @@ def load_module(module: str) -> list[str]:
         raise ValueError(f"module {module!r} failed to import: {_first_line(err)}") from err
     except Exception as err:  # a module that raises while it imports: one line, not a traceback
         raise ValueError(f"module {module!r} failed to import: {_first_line(err)}") from err
-    specs = list(getattr(mod, "DOMAINS", []))
-    if isinstance(getattr(mod, "DOMAIN", None), DomainSpec):
-        specs.append(mod.DOMAIN)
+    found = vars(mod)
+    specs = list(found.get("DOMAINS", []))
+    if isinstance(found.get("DOMAIN"), DomainSpec):
+        specs.append(found["DOMAIN"])
     for spec in specs:
         register(spec.name, spec, source=f"module {module}")
     added = sorted(set(_DOMAINS) - before)
@@ -97,7 +98,10 @@ def get(name: str) -> DomainSpec:
         return entry
     module, attr = entry.split(":")
     try:
-        spec = getattr(importlib.import_module(module), attr)
+        found = vars(importlib.import_module(module))
+        if attr not in found:
+            raise AttributeError(f"module {module!r} has no attribute {attr!r}")
+        spec = found[attr]
     except Exception as err:  # a plugin that raises while it imports hides no other domain
         raise ValueError(
             f"domain {name!r} ({_SOURCES[name]}): cannot load {entry} ({_first_line(err)})"

@@ -21,6 +21,7 @@ import json
 import math
 import subprocess
 import time
+import types
 import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
@@ -70,6 +71,10 @@ def settings_of(obj) -> dict:
     return out
 
 
+#: callables logged by their name (a class, a function); any other by ``repr``
+_NAMED = (type, types.FunctionType, types.BuiltinFunctionType, types.MethodType)
+
+
 def hparams_of(**parts) -> dict:
     """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
     out = {}
@@ -77,7 +82,7 @@ def hparams_of(**parts) -> dict:
         if is_dataclass(value):
             out.update({f"{name}.{k}": v for k, v in asdict(value).items()})
         elif callable(value):
-            out[name] = getattr(value, "__name__", repr(value))
+            out[name] = value.__name__ if isinstance(value, _NAMED) else repr(value)
         else:
             out[name] = value
     return out

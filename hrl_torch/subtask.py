@@ -250,8 +250,13 @@ Node = Subtask | Primitive
 def overrides(node: Node, method: str) -> bool:
     """Whether ``node`` defines ``method`` itself (subclass override or a callable given)."""
     base = Primitive if node.is_primitive else Subtask
-    if getattr(type(node), method) is not getattr(base, method):
+    if _defined(type(node), method) is not vars(base)[method]:
         return True
     if node.is_primitive:
         return method == "abstract" and node._abstract is not None
     return node._fns.get(method) is not None
+
+
+def _defined(cls: type, name: str):
+    """The class attribute ``name`` as ``cls`` finds it: the first definition along its MRO."""
+    return next(vars(c)[name] for c in cls.__mro__ if name in vars(c))

@@ -66,7 +66,7 @@ class TorchRLEnv(EnvBase):
     def _fields(self, duration: torch.Tensor) -> dict:
         fields = {
             k: v
-            for k, v in self.env._observe().items()
+            for k, v in self.env.observation().items()
             if k in self.env.observation_sizes or k in self.env.observation_bounds
         }
         fields["duration"] = duration
@@ -77,7 +77,7 @@ class TorchRLEnv(EnvBase):
         mask = torch.ones(b, dtype=torch.bool, device=self.device)
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict["_reset"].reshape(b)
-        self.env._reset_rows(mask)
+        self.env.reset_rows(mask)
         self.env.elapsed[mask] = 0
         false = torch.zeros(b, 1, dtype=torch.bool, device=self.device)
         out = self._fields(torch.zeros(b, device=self.device))
@@ -86,7 +86,7 @@ class TorchRLEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"]
-        reward, duration, terminated = self.env._step_all(action)
+        reward, duration, terminated = self.env.step_all(action)
         self.env.elapsed += 1
         limit = self.env.max_episode_steps
         truncated = (

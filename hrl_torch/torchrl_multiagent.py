@@ -83,8 +83,8 @@ class MultiAgentTorchRLEnv(EnvBase):
         super().__init__(batch_size=torch.Size([env.batch_size]), device=env.device)
         self.env = env
         b, n, dev = env.batch_size, env.n_agents, env.device
-        shared = env._observe()
-        own = env._observe_agents()
+        shared = env.observation()
+        own = env.agent_observation()
         self._shared_keys = list(shared)
         self._agent_keys = list(own)
         obs = {
@@ -118,17 +118,7 @@ class MultiAgentTorchRLEnv(EnvBase):
     # -- TorchRL hooks
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = self._reset_mask(tensordict)
-        env, m2 = self.env, mask[:, None]
-        env._reset_rows(mask)
-        env.elapsed = torch.where(mask, 0, env.elapsed)
-        env.done = env.done & ~mask
-        env.acting = env.acting | m2
-        env.pending_reward = torch.where(m2, 0.0, env.pending_reward)
-        env.pending_time = torch.where(m2, 0.0, env.pending_time)
-        zero = torch.zeros(env.batch_size, device=self.device)
-        false = torch.zeros(env.batch_size, dtype=torch.bool, device=self.device)
-        out = env._output(zero, zero, false, false, mask, torch.zeros_like(env.pending_time))
-        return self._convert(out, with_reward=False)
+        return self._convert(self.env.restart_rows(mask), with_reward=False)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         return self._convert(self.env.step(tensordict.get((GROUP, "action"))), with_reward=True)

@@ -357,6 +357,17 @@ class SelectsRows(Protocol):
         ...
 
 
+@runtime_checkable
+class PricesChoices(Protocol):
+    """A policy that subtracts a fixed cost of choosing a child from its value before choosing.
+
+    (``ValuePolicy``; COM-Cooperative HRL's communication cost sets it.)
+    """
+
+    #: ``[n_nodes, max_children]`` cost of each (node, child slot), or ``None``: no cost
+    choice_cost: torch.Tensor | None
+
+
 def shift_right(x: torch.Tensor, fill=0) -> torch.Tensor:
     """``x`` moved one level down the stack dims ``[B, D]`` (level 0 gets ``fill``)."""
     return torch.nn.functional.pad(x[:, :-1], (1, 0), value=fill)

@@ -892,8 +892,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-guard-bound-late",
         "hrl_torch/executor.py",
-        "self._guard_quiet = cfg.max_subtask_steps - longest - 1",
-        "self._guard_quiet = cfg.max_subtask_steps - longest + 3",
+        "self.guard_quiet = cfg.max_subtask_steps - longest - 1",
+        "self.guard_quiet = cfg.max_subtask_steps - longest + 3",
         "the guard is skipped for a few steps too many and cuts a subtask late",
         (EXECUTOR,),
     ),

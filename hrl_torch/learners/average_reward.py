@@ -39,7 +39,7 @@ from torch import nn
 from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
-from hrl_torch.learners.base import TabularLearner
+from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.three_part import ThreePartLearner
 
 
@@ -152,6 +152,7 @@ class RARLearner(TabularLearner):
     """
 
     uses = frozenset({"greedy", "primitive"})
+    value_keys = ("H", "Q")
 
     def __init__(
         self,
@@ -200,7 +201,7 @@ class RARLearner(TabularLearner):
         table = lay.inst_table[inst.clamp_min(0)]
         child_table = lay.table_children[table, level["child"]].clamp_min(0)
         terminal = level["terminal"]
-        valid = level["valid"] & (level["child_done"] | terminal)
+        valid = finished(level)
         t = self.time_of(batch)
         gains = self.gain
         g_i = gains[learner, table]
@@ -212,16 +213,9 @@ class RARLearner(TabularLearner):
         self.record_td(learner, level["node"], target - self.C.read(idx, valid), valid)
         self.C.update(idx.reshape(-1), target.reshape(-1), alpha, valid.reshape(-1))
         if self.all_states and "visited_state" in level.keys():
-            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
             left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             target_k = h_next[..., None] - (g_i - g_a)[..., None] * left
-            vidx = self.C.index(
-                learner[..., None],
-                table[..., None],
-                level["visited_state"],
-                level["child"][..., None],
-            )
-            self.C.update(vidx.reshape(-1), target_k.reshape(-1), alpha, late.reshape(-1))
+            self.update_visited(batch, table, valid, alpha, [(self.C, target_k)])
         prim_table = lay.inst_table[prim["inst"].clamp_min(0)]
         pidx = self.V.index(batch["learner"], prim_table, prim["state"], 0)
         self.V.update(pidx, prim["reward"], alpha, prim["valid"])  # line 5

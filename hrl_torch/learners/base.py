@@ -3,7 +3,8 @@
 A learner is an update rule over batches of SMDP transitions (see ``hrl_torch.executor``):
 
 - ``evaluate(ctx)`` computes, once per step, whatever per-node values its choices and targets
-  need at the current observations and stores them in ``ctx.values``;
+  need at the current observations and stores them in ``ctx.values``, under the keys its
+  ``value_keys`` declare (all of them, no other: ``evaluate_checked`` holds it to them);
 - ``action_values(inst, ctx)`` returns the values ``[B, A]`` of the children of the instances
   ``inst [B]`` that exploration chooses from;
 - ``update(batch, step)`` applies one batch of transitions (``hrl_torch.agent``): their
@@ -29,6 +30,15 @@ from hrl_torch.tables import TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
 
 
+def finished(level) -> torch.Tensor:
+    """``[B, D]``: the levels of a transition batch (``batch[LEVEL]``) that learn this step.
+
+    A transition was emitted there and its child ended by its own termination, or ``s'`` is
+    terminal for the level's node (an abort by an ancestor teaches nothing).
+    """
+    return level["valid"] & (level["child_done"] | level["terminal"])
+
+
 class Learner(MovesTensorAttrs, nn.Module):
     """Base class: a population of ``P`` independent learners over one task graph.
 
@@ -39,6 +49,9 @@ class Learner(MovesTensorAttrs, nn.Module):
 
     gamma: float = 1.0
     uses: frozenset[str] | None = None
+    #: the keys ``evaluate`` writes in ``ctx.values`` (every one, every step), which ``update``
+    #: reads back from ``batch["values"]``: a key not declared here is never in a batch
+    value_keys: tuple[str, ...] = ()
     #: ``evaluate``'s values at a row depend on nothing but the row's learner, the tables, the
     #: context's fields and the observation (not, e.g., on the executor's stacks): on a
     #: tabulated graph a function of the row's learner and state, which lets a non-learning
@@ -60,7 +73,26 @@ class Learner(MovesTensorAttrs, nn.Module):
         self.register_buffer("td_count", torch.zeros(n_learners, graph.n_nodes))
 
     def evaluate(self, ctx: StepContext) -> None:
-        """Fill ``ctx.values`` for the observations of ``ctx``."""
+        """Fill ``ctx.values`` for the observations of ``ctx`` (the keys of ``value_keys``)."""
+
+    def evaluate_checked(self, ctx: StepContext) -> None:
+        """``evaluate``, then a clear error when ``ctx.values`` is not keyed by ``value_keys``."""
+        self.evaluate(ctx)
+        if ctx.values.keys() != set(self.value_keys):
+            raise KeyError(
+                f"{type(self).__name__}.evaluate wrote ctx.values keys {_names(ctx.values)}, "
+                f"but its value_keys declare {_names(self.value_keys)}"
+            )
+
+    def update_checked(self, batch, step: int) -> None:
+        """``update``; a missing key names what the batch's values hold (``value_keys``)."""
+        try:
+            self.update(batch, step)
+        except KeyError as err:
+            raise KeyError(
+                f"{type(self).__name__}.update: {err.args[0] if err.args else err}; its batch "
+                f"values hold its value_keys {_names(self.value_keys)} only"
+            ) from err
 
     def make_policy(self, exploration: Exploration, rng: BatchRNG, evaluate: bool = False):
         """The executor policy: ``exploration`` over the action values (``ValuePolicy``).
@@ -97,11 +129,15 @@ class Learner(MovesTensorAttrs, nn.Module):
         """
         cached = self.__dict__.get("_distinct")
         if cached is None or cached[0] is not learner:
-            known = getattr(learner, "distinct_rows", None)  # (the executor's, read on the CPU)
+            known = vars(learner).get("distinct_rows")  # (the executor's, read on the CPU)
             distinct = learner.unique().numel() == learner.numel() if known is None else known
             cached = (learner, distinct)
             self.__dict__["_distinct"] = cached
         return cached[1]
+
+
+def _names(keys) -> str:
+    return ", ".join(sorted(keys)) or "(none)"
 
 
 class TabularLearner(Learner):
@@ -126,6 +162,7 @@ class TabularLearner(Learner):
 
     values_per_state = True
     all_instances_at_once = True
+    value_keys = ("Q",)
 
     def __init__(
         self,
@@ -245,6 +282,25 @@ class TabularLearner(Learner):
         base = self.plan.learner_base(learner, self.tables.stride, 2)
         offset, n_cols = torch.take(self.entry_offset, table), torch.take(self.entry_cols, table)
         return base + offset + level["state"] * n_cols + level["child"]
+
+    def update_visited(self, batch, table, valid, alpha, targets) -> None:
+        """All-states updating (Algorithm 1 line 16, Algorithm 2 line 15, Algorithm 4 line 16).
+
+        Every state ``s_k`` a finished child passed after its first step (the executor's
+        ``visited_state [B, D, K]``) gets an update of its own: each ``(bank, target [B, D, K])``
+        of ``targets`` moves entry ``(table, s_k, child)`` toward the target from ``s_k``, at
+        the levels ``valid [B, D]``. The banks share one layout (completion banks of one store).
+        """
+        level = batch[LEVEL]
+        late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
+        late = late.reshape(-1)
+        first = targets[0][0]
+        learner = batch["learner"][:, None, None]
+        state, child = level["visited_state"], level["child"][..., None]
+        index = first.index(learner, table[..., None], state, child).reshape(-1)
+        for bank, target in targets:
+            at = index if bank.base == first.base else index + (bank.base - first.base)
+            bank.update(at, target.reshape(-1), alpha, late)
 
     def attach_heads(self, **banks: TableBank) -> None:
         """Heads (``self.heads``) naming every table node's block of each of ``banks``."""

@@ -26,7 +26,7 @@ import torch
 from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.average_reward import GainEstimate
-from hrl_torch.learners.base import TabularLearner
+from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.ops import columns
 from hrl_torch.tables import TableBank
 
@@ -42,6 +42,8 @@ class HHLearner(TabularLearner):
         max_model_entries: refuse graphs whose dense model would exceed this many counts per
             learner.
     """
+
+    value_keys = ("H", "Q", "H_index")
 
     def __init__(
         self,
@@ -146,7 +148,7 @@ class HHLearner(TabularLearner):
         inst = level["inst"]
         table = lay.inst_table[inst.clamp_min(0)]
         terminal = level["terminal"]
-        valid = level["valid"] & (level["child_done"] | terminal)
+        valid = finished(level)
         n_out = self.outcomes[table]
         outcome = torch.where(terminal, n_out - 1, level["next_state"])
         col = level["child"] * n_out + outcome

@@ -25,7 +25,7 @@ import torch
 from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.learners.base import TabularLearner
+from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.ops import argmax_last, discount, entries
 
 
@@ -51,6 +51,7 @@ class MaxQLearner(TabularLearner):
     """
 
     uses = frozenset()
+    value_keys = ("V", "V_int", "Q")
 
     def __init__(
         self,
@@ -150,7 +151,7 @@ class MaxQLearner(TabularLearner):
         alpha = self.alpha(step)
         table = self.level_table(level)
         terminal, ran = level["terminal"], level["ran"]
-        valid = level["valid"] & (level["child_done"] | terminal)
+        valid = finished(level)
         v_next = values["V"].gather(1, table)
         v_next_int = values["V_int"].gather(1, table) if self.internal else v_next
         target, target_int = self.targets(level, terminal, v_next, v_next_int)
@@ -181,8 +182,7 @@ class MaxQLearner(TabularLearner):
         with ``R~_k`` the shaping of ``i`` from ``s_k`` on, discounted to ``s_k``: the child's
         whole shaping less what was collected before ``s_k``, over ``gamma^t_k``.
         """
-        level, learner = batch[LEVEL], batch["learner"][:, None]
-        late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
+        level = batch[LEVEL]
         remaining = level["duration"][..., None] - level["visited_time"]
         factor = discount(self.gamma, remaining)
         external = factor * v_next[..., None].masked_fill(terminal[..., None], 0.0)
@@ -192,10 +192,7 @@ class MaxQLearner(TabularLearner):
         if "visited_internal" in level.keys():  # the shaping from s_k on
             shaping = level["internal_reward"][..., None] - level["visited_internal"]
             internal = internal + shaping / discount(self.gamma, level["visited_time"])
-        vidx = self.C.index(
-            learner[..., None], table[..., None], level["visited_state"], level["child"][..., None]
-        )
-        self.C.update(vidx.reshape(-1), external.reshape(-1), alpha, late.reshape(-1))
+        targets = [(self.C, external)]
         if self.internal:  # (C~ sits at a fixed distance from C, as in ``update``)
-            vidx = vidx + (self.C_int.base - self.C.base)
-            self.C_int.update(vidx.reshape(-1), internal.reshape(-1), alpha, late.reshape(-1))
+            targets.append((self.C_int, internal))
+        self.update_visited(batch, table, valid, alpha, targets)

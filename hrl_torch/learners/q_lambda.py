@@ -57,6 +57,8 @@ class QLambdaLearner(TabularLearner):
         init: initial action values.
     """
 
+    value_keys = ("V", "Q")
+
     def __init__(
         self,
         graph: TaskGraph,

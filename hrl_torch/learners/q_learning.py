@@ -17,7 +17,7 @@ import torch
 
 from hrl_torch.executor import LEVEL
 from hrl_torch.graph import StepContext
-from hrl_torch.learners.base import TabularLearner
+from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.ops import discount, lookup
 
 
@@ -34,6 +34,7 @@ class SMDPQLearner(TabularLearner):
     """
 
     uses = frozenset()
+    value_keys = ("V", "Q")
 
     def __init__(
         self, graph, n_learners, alpha=0.5, gamma=1.0, per_instance=False, init: float = 0.0
@@ -56,7 +57,7 @@ class SMDPQLearner(TabularLearner):
         learner = batch["learner"][:, None]
         table = lookup(self.layout.inst_table, level["inst"].clamp_min(0))
         terminal = level["terminal"]
-        valid = level["valid"] & (level["child_done"] | terminal)
+        valid = finished(level)
         factor = discount(self.gamma, level["duration"])
         continuation = torch.where(
             terminal, level["pseudo_reward"], batch["values", "V"].gather(1, table)

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import torch
 
 from hrl_torch.checkpoint import Stateful
-from hrl_torch.devices import move_attributes
+from hrl_torch.devices import attributes_of, move_attributes
 from hrl_torch.executor import Choice
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
@@ -49,7 +49,7 @@ class RuleLearner(Learner):
     def make_policy(self, exploration, rng, evaluate: bool = False) -> RulePolicy:
         """The rule over ``rng``'s rows (exploration is the rule's own business)."""
         rule = self.make_rule(rng.batch_size)
-        if hasattr(rule, "__dict__"):  # (its memory on the rows' device)
+        if attributes_of(rule) is not None:  # (its memory on the rows' device)
             move_attributes(rule, lambda t: t.to(rng.device))
         if not evaluate:
             self._training_rule = rule

@@ -47,6 +47,8 @@ class RVIQLearner(TabularLearner):
         time_unit: durations are measured in this unit (continuous time).
     """
 
+    value_keys = ("V", "Q")
+
     def __init__(
         self,
         graph: TaskGraph,

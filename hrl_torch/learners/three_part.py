@@ -34,7 +34,7 @@ import torch
 from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.learners.base import TabularLearner
+from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.ops import argmax_last, columns, entries
 
 
@@ -80,6 +80,7 @@ class ThreePartLearner(TabularLearner):
     """
 
     uses = frozenset({"parent_inst"})
+    value_keys = ("V", "CE", "W", "Q")
 
     def __init__(
         self,
@@ -161,7 +162,7 @@ class ThreePartLearner(TabularLearner):
         alpha = self.alpha(step)
         table = self.level_table(level)  # tables per instance: the instance
         terminal, ran = level["terminal"], level["ran"]
-        valid = level["valid"] & (level["child_done"] | terminal)
+        valid = finished(level)
         t = self.time_of(batch)
         v_next = values["V"].gather(1, table)
         ce_next = values["CE"].gather(1, table)
@@ -181,8 +182,6 @@ class ThreePartLearner(TabularLearner):
         self.record_td(learner, level["node"], c_target - old[:, : index.shape[1]], valid)
         if self.all_states and "visited_state" in level.keys():
             # line 16: every x in ChildSeq, with the time left after it
-            learner = batch["learner"][:, None]
-            late = level["visited_valid"] & (level["visited_steps"] > 0) & valid[..., None]
             left = t[..., None] - self.time_of(batch, "visited_steps", "visited_time")
             c_k, ce_k = three_part_targets(
                 self.discount(left),
@@ -191,11 +190,4 @@ class ThreePartLearner(TabularLearner):
                 ce_next[..., None],
                 outer[..., None],
             )
-            vidx = self.C.index(
-                learner[..., None],
-                table[..., None],
-                level["visited_state"],
-                level["child"][..., None],
-            ).reshape(-1)
-            self.C.update(vidx, c_k.reshape(-1), alpha, late.reshape(-1))
-            self.CE.update(vidx, ce_k.reshape(-1), alpha, late.reshape(-1))
+            self.update_visited(batch, table, valid, alpha, [(self.C, c_k), (self.CE, ce_k)])
