@@ -128,7 +128,7 @@ class Descent:
         def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
             """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
             out = values.new_full((col.shape[0], *values.shape[1:]), fill)
-            return out.index_copy(0, rows, values)
+            return out.index_copy_(0, rows, values)  # (in place: a fresh tensor)
 
         out = Choice(spread(part.child), spread(part.greedy, True))
         if part.action is not None:
