@@ -9,6 +9,7 @@ executor then pushes the new path (``HierarchicalExecutor._push``).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
 import torch
@@ -127,7 +128,7 @@ class Descent:
         def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
             """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
             out = values.new_full((col.shape[0], *values.shape[1:]), fill)
-            return out.index_copy(0, rows, values)
+            return out.index_copy_(0, rows, values)  # (in place: a fresh tensor)
 
         out = Choice(spread(part.child), spread(part.greedy, True))
         if part.action is not None:
@@ -170,3 +171,29 @@ class Descent:
         if choice.action is None:
             raise GraphError("a continuous primitive was chosen without an action value")
         f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
+
+
+def level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The levels' roles in a push, by old and new top: ``(spans, code)``.
+
+    ``spans[(old + 1) * (D + 1) + new + 1]`` is ``[4, D]``: the levels kept (below the old
+    top), the ones that chose a child (old top .. new top - 1), the new invocations (above
+    the old top up to the new one) and the fresh ones (either). ``code[top1]`` is
+    ``depth + 1 + (D + 1)`` of the instance ``top1 - 1``, so that ``old * (D + 1) + code``
+    is the row of ``spans``. (``spans`` is made once per depth: executors for evaluation
+    subsets are built often; it is only read.)
+    """
+    return _spans(depth).to(depth_1.device), depth_1 + 1 + (depth + 1)
+
+
+@functools.cache
+def _spans(depth: int) -> torch.Tensor:
+    lv = torch.arange(depth)
+    rows = []
+    for old in range(-1, depth):
+        for new in range(-1, depth):
+            kept = lv < old
+            chose = ~kept & (lv < new)
+            invoked = (lv > old) & (lv <= new)
+            rows.append(torch.stack([kept, chose, invoked, chose | invoked]))
+    return torch.stack(rows)

@@ -24,7 +24,7 @@ from typing import Literal
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.descent import Descent
+from hrl_torch.descent import Descent, level_spans
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.ops import add_at, discount, entries
 from hrl_torch.stack import TaskStack
@@ -151,7 +151,7 @@ class HierarchicalExecutor:
             self._accumulators.append("disc_reward")
         if graph.shaping_nodes:
             self._accumulators.append("internal")
-        self._spans, self._span_code_1 = _level_spans(self.depth, graph.inst_depth_1)
+        self._spans, self._span_code_1 = level_spans(self.depth, graph.inst_depth_1)
         self._memory_depth = _memory_feature_depth(graph)
         self._obs = None
         self._action = torch.zeros(batch_size, **long)
@@ -518,27 +518,6 @@ def _memory_feature_depth(graph: TaskGraph) -> int:
     nodes = torch.tensor(graph.memory_feature_nodes, dtype=torch.long)
     memory_inst = torch.isin(graph.host("inst_node"), nodes)  # (on the CPU)
     return int(graph.host("inst_depth")[memory_inst].max()) if memory_inst.any() else -1
-
-
-def _level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The levels' roles in a push, by old and new top: ``(spans, code)``.
-
-    ``spans[(old + 1) * (D + 1) + new + 1]`` is ``[4, D]``: the levels kept (below the old
-    top), the ones that chose a child (old top .. new top - 1), the new invocations (above
-    the old top up to the new one) and the fresh ones (either). ``code[top1]`` is
-    ``depth + 1 + (D + 1)`` of the instance ``top1 - 1``, so that ``old * (D + 1) + code``
-    is the row of ``spans``.
-    """
-    lv = torch.arange(depth)
-    rows = []
-    for old in range(-1, depth):
-        for new in range(-1, depth):
-            kept = lv < old
-            chose = ~kept & (lv < new)
-            invoked = (lv > old) & (lv <= new)
-            rows.append(torch.stack([kept, chose, invoked, chose | invoked]))
-    code = depth_1 + 1 + (depth + 1)
-    return torch.stack(rows).to(depth_1.device), code
 
 
 def _raise_stuck(g: TaskGraph, stuck: torch.Tensor, node: torch.Tensor) -> None:

@@ -43,12 +43,16 @@ _MULT = 0x045D9F3B  # < 2**27, so (x < 2**32) * _MULT stays below 2**63
 
 
 def mix32(x: torch.Tensor) -> torch.Tensor:
-    """Hash int64 values in ``[0, 2**32)`` to ``[0, 2**32)`` (shape preserved)."""
+    """Hash int64 values in ``[0, 2**32)`` to ``[0, 2**32)`` (shape preserved).
+
+    (In place on a fresh tensor after the first op: a block of draws is a few MB, and new
+    buffers per op cost a third more.)
+    """
     x = x ^ (x >> 16)
-    x = (x * _MULT) & _MASK32
-    x = x ^ (x >> 16)
-    x = (x * _MULT) & _MASK32
-    return x ^ (x >> 16)
+    x.mul_(_MULT).bitwise_and_(_MASK32)
+    x.bitwise_xor_(x >> 16)
+    x.mul_(_MULT).bitwise_and_(_MASK32)
+    return x.bitwise_xor_(x >> 16)
 
 
 def _mix32_int(x: int) -> int:
@@ -184,8 +188,9 @@ class BatchRNG:
         u = _to_uniform(self._bits(extra, first, k, needed))
         if needed is None:
             return u
-        where = torch.tensor([needed.index(c) for c in listed])
-        return u.index_select(-1, where.to(u.device)).view(*u.shape[:2], *columns.shape)
+        where = torch.tensor([needed.index(c) for c in listed]).to(u.device)
+        # (a gather: ``index_select`` along the last dimension copies element by element)
+        return u.gather(-1, where.expand(*u.shape[:2], -1)).view(*u.shape[:2], *columns.shape)
 
     def uniform_rows(
         self, extra: int, counter: int, rows: torch.Tensor, columns: torch.Tensor

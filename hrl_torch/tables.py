@@ -4,7 +4,7 @@ A ``TableBank`` keeps one kind of table (completion ``C``, primitive values ``V`
 table node of a hierarchy in one flat buffer of shape ``[P, total]``: node ``t`` owns the block
 ``offset[t] : offset[t] + n_states[t] * n_cols[t]``. One flat buffer lets a whole batch of
 transitions, from any mix of nodes and learners, be read with one ``gather`` and written with one
-``index_put_``. ``TableLayout`` says which table node serves which executor instance: one table per
+``put_``. ``TableLayout`` says which table node serves which executor instance: one table per
 subtask for recursively optimal learners, one per instance (per Task-Stack context) for
 hierarchically optimal ones.
 """
@@ -112,7 +112,7 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
             old = torch.take(flat, index)
             mean = torch.nan_to_num(target)
             new = mean + (1.0 - alpha) * (old - mean)  # (the n = 1 case below, op for op)
-            flat.index_put_((index,), torch.where(mask, new, old))
+            flat.put_(index, torch.where(mask, new, old))  # (``put_``: flat, cheaper)
             return old
         shape = index.shape
         index, target, mask = index.reshape(-1), target.reshape(-1), mask.reshape(-1)
@@ -124,7 +124,7 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
         mean = total / n.clamp_min(1.0)
         old = flat.index_select(0, index)
-        flat.index_put_((index,), mean + keep * (old - mean))
+        flat.put_(index, mean + keep * (old - mean))
         return old.view(shape)
 
     def _count_and_sum(self, index, weighted) -> tuple[torch.Tensor, torch.Tensor]:

@@ -195,16 +195,17 @@ class TabularLearner(Learner):
         return TableBank(self.n_learners, n_states, torch.ones_like(n_states), init)
 
     # ------------------------------------------------------------------ evaluation
-    def composite_rows(self, ctx: StepContext, *banks: TableBank):
+    def composite_rows(self, ctx: StepContext, *banks: TableBank, penalty: bool = False):
         """The planned tables' rows at ``ctx``: ``(blocked, dead, rows of each bank)``.
 
         ``blocked [B, Tc, A]``: children not available (padding True); ``dead [B, Tc]``: the
         table's state is terminal for it or nothing is available (its value is 0); each bank's
         rows ``[B, Tc, A]`` (tables in ``self.plan`` order). The entries of blocked children
         hold any finite value: read them masked. The banks share one layout (completion banks
-        of this learner, padded by ``max_children``).
+        of this learner, padded by ``max_children``). ``penalty``: ``blocked`` as floats, -inf
+        where blocked and 0 elsewhere (``EvalPlan.rows_at``).
         """
-        blocked, dead, index = self.plan.rows_at(ctx, banks[0])
+        blocked, dead, index = self.plan.rows_at(ctx, banks[0], penalty)
         rows = []
         for bank in banks:
             at = index if bank.base == banks[0].base else index + (bank.base - banks[0].base)

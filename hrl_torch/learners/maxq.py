@@ -100,22 +100,23 @@ class MaxQLearner(TabularLearner):
         ``ctx.values``: ``V``, ``V_int`` ``[B, T]``; ``Q`` ``[B, Tc, A]`` (plan order).
         """
         banks = (self.C, self.C_int) if self.internal else (self.C,)
-        blocked, dead, rows = self.composite_rows(ctx, *banks)
+        # (penalty: -inf for unavailable children, 0 elsewhere; q + penalty masks them)
+        penalty, dead, rows = self.composite_rows(ctx, *banks, penalty=True)
         value = self.primitive_values(ctx, self.V)
         value_int = value.clone() if self.internal else value
         q_rows = []
-        for ids, kids, unavailable, gone, c, *c_int in self.groups(blocked, dead, *rows):
+        for ids, kids, unavailable, gone, c, *c_int in self.groups(penalty, dead, *rows):
             child_v = torch.take(value, kids)
             q_ext = child_v + c
             if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
                 q_int = child_v + c_int[0]
-                best = argmax_last(q_int.masked_fill(unavailable, -torch.inf), keepdim=True)
+                best = argmax_last(q_int + unavailable, keepdim=True)
                 v_ext = q_ext.gather(-1, best).squeeze(-1)
                 v_int = q_int.gather(-1, best).squeeze(-1)
                 value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
             else:
                 q_int = q_ext
-                v_ext = q_ext.masked_fill(unavailable, -torch.inf).amax(-1)
+                v_ext = (q_ext + unavailable).amax(-1)
             value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
             q_rows.append(q_int)
         ctx.values["V"] = value
