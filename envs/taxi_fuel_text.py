@@ -18,11 +18,17 @@ factor's size in ``FACTORS`` (their product is ``N_STATES``). Fields: those of `
 declared spaces.
 
 ## Rules (the text's; what differs from ``envs.taxi_fuel``)
-The map, the fuel station F, the moves, Pickup and Dropoff are ``envs.taxi_fuel``'s. -1 per
-action, +20 for the delivery, -10 for an illegal Pickup or Dropoff, -20 for the move that
-takes the fuel below zero (to level -1). Changed: Fillup away from F costs -1 and does
-nothing (the text names only Pickup and Dropoff as illegal; ``envs.taxi_fuel`` gives -10), and
-no time limit (the text's episode ends at the delivery or when the fuel runs out). Rows of the
+The map, the fuel station F, the moves and Pickup are ``envs.taxi_fuel``'s. -1 per action,
++20 for the delivery, -10 for an illegal Pickup or Dropoff, -20 for the move that takes the
+fuel below zero (to level -1). Changed:
+
+- Dropoff is legal only at the destination ("drop off the passenger there"); anywhere else it
+  is illegal (-10, the passenger stays aboard). Gymnasium's taxi, and so ``envs.taxi_fuel``,
+  lets the passenger out at any station for -1: without a time limit, Get and Put could then
+  trade the passenger back and forth at one station for ever, burning no fuel.
+- Fillup away from F costs -1 and does nothing (the text names only Pickup and Dropoff as
+  illegal; ``envs.taxi_fuel`` gives -10).
+- No time limit (the text's episode ends at the delivery or when the fuel runs out). Rows of the
 unused destination code are never reached: there every action leaves the state as it is (-1).
 """
 
@@ -37,8 +43,10 @@ import torch
 from envs import taxi
 from envs.taxi_fuel import (
     CAPACITY,
+    DROPOFF,
     FILLUP,
     FUEL_STATION,
+    ILLEGAL_REWARD,
     N_ACTIONS,
     OUT_OF_FUEL_REWARD,
     PICKUP,
@@ -111,6 +119,9 @@ def transition_tables() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch
     loc = pad(after["taxi_loc"], f["taxi_loc"])
     passenger = pad(after["passenger"], f["passenger"])
     reward = pad(taxi_reward[t], torch.full((N_STATES,), -1.0))
+    wrong_drop = (f["passenger"] == IN_TAXI) & ~taxi_terminated[t][:, DROPOFF]  # not at dest.
+    passenger[:, DROPOFF] = torch.where(wrong_drop, IN_TAXI, passenger[:, DROPOFF])
+    reward[:, DROPOFF] = torch.where(wrong_drop, ILLEGAL_REWARD, reward[:, DROPOFF])
     dry = next_fuel == EMPTY
     reward = torch.where(dry, OUT_OF_FUEL_REWARD, reward)
     terminated = pad(taxi_terminated[t], torch.zeros(N_STATES, dtype=torch.bool)) | dry

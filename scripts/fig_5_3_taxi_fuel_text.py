@@ -16,7 +16,6 @@ Writes a run folder per algorithm and ``<out>/taxi_fuel_text_compare/`` with bot
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 from pathlib import Path
 
@@ -145,8 +144,8 @@ def main() -> None:
     for algo in args.algos:
         budget = args.steps or DOMAIN.algos[algo].train.steps
         if algo in reuse:
-            run_dir = Path(reuse[algo])
-            budget = json.loads((run_dir / "summary.json").read_text())["env_steps_per_learner"]
+            run_dir = Path(reuse[algo])  # (a run cut short: up to its last evaluation)
+            budget = int(read_curves(run_dir / "progress.csv", GREEDY)[0][-1])
         else:
             run_dir, summary = run_experiment(DOMAIN, algo, _options(args, budget))
             print(format_summary(summary), flush=True)

@@ -71,6 +71,8 @@ def _step_from(start, action):
         ((0, 0, G, Y, 4), FILLUP, (0, 0, G, Y, 4), -1, False),  # away from F: -1, not -10
         ((0, 0, G, Y, 3), PICKUP, (0, 0, G, Y, 3), -10, False),  # illegal pickup
         ((4, 0, IN_TAXI, Y, 0), DROPOFF, (4, 0, Y, Y, 0), 20, True),  # delivery
+        ((4, 0, IN_TAXI, B, 2), DROPOFF, (4, 0, IN_TAXI, B, 2), -10, False),  # wrong station
+        ((2, 2, IN_TAXI, B, 2), DROPOFF, (2, 2, IN_TAXI, B, 2), -10, False),  # no station
         ((2, 2, IN_TAXI, B, 0), SOUTH, (3, 2, IN_TAXI, B, -1), -20, True),  # below zero: -1
     ],
 )
@@ -83,8 +85,8 @@ def test_hand_checked_transitions(start, action, after, reward, terminated):
 
 
 def test_the_rest_of_the_rules_are_taxi_fuels():
-    # every taxi-fuel state and action: the same successor, reward and end, except the two
-    # rules the text changes (Fillup away from F; the level below zero)
+    # every taxi-fuel state and action: the same successor, reward and end, except the three
+    # rules the text changes (Fillup away from F; Dropoff at a wrong station; below zero)
     old_next, old_reward, old_term, _ = taxi_fuel.transition_tables()
     old = taxi_fuel.decode(torch.arange(taxi_fuel.N_STATES))
     new_index = torch.tensor(
@@ -92,8 +94,13 @@ def test_the_rest_of_the_rules_are_taxi_fuels():
     )
     nxt, reward, terminated, _ = transition_tables()
     changed = (old_reward == -10) & (torch.arange(7) == FILLUP)
+    aboard = old["passenger"][:, None] == IN_TAXI
+    wrong_drop = aboard & (torch.arange(7) == DROPOFF) & (old_reward == -1)
     dry = old_reward == -20
-    same = ~changed & ~dry
+    same = ~changed & ~dry & ~wrong_drop
+    assert torch.equal(nxt[new_index][wrong_drop], new_index[:, None].expand(-1, 7)[wrong_drop])
+    assert bool((reward[new_index][wrong_drop] == -10).all())
+    assert int(wrong_drop.sum()) == 13 * 3 * 4  # fuel x the other stations x destinations
     assert torch.equal(nxt[new_index][same], new_index[old_next][same])
     assert torch.equal(reward[new_index][same], old_reward[same])
     assert torch.equal(terminated[new_index], old_term)
