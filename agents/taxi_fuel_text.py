@@ -22,15 +22,17 @@ Algorithms: ``hpgrl`` (Algorithm 3 at every node, one softmax parameter per (sta
 from __future__ import annotations
 
 from agents.taxi import (
+    IN_TAXI,
     PESSIMISTIC_INIT,
     Navigate,
+    _bind,
     epsilon_first_third,
     flat_graph,
     get_and_put,
     taxi_primitives,
 )
 from agents.taxi_fuel import HPGRL_ALPHA, NavigateToFuel
-from envs.taxi_fuel_text import CAPACITY, N_STATES, TaxiFuelTextEnv
+from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.domain import AlgoSpec, DomainSpec
 from hrl_torch.exploration import Greedy
@@ -61,6 +63,65 @@ def text_hierarchy() -> TaskGraph:
     )
     prims = [*taxi_primitives(), Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"])]
     nodes = [root, get, put, refuel, *navs, NavigateToFuel(), *prims]
+    return TaskGraph("Root", nodes, n_actions=N_ACTIONS)
+
+
+F = FACTORS["fuel_level"]
+
+
+class FuelNavigate(Navigate):
+    """Navigate(t) over (taxi location, fuel): whether the route runs dry depends on the fuel."""
+
+    def __init__(self, target: int) -> None:
+        super().__init__(target)
+        self.n_states = 25 * F
+
+    def abstract(self, obs):
+        return obs["taxi_loc"] * F + obs["fuel_level"]
+
+
+class FuelNavigateToFuel(NavigateToFuel):
+    """Navigate(F) over (taxi location, fuel)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.n_states = 25 * F
+
+    def abstract(self, obs):
+        return obs["taxi_loc"] * F + obs["fuel_level"]
+
+
+def fuel_aware_hierarchy() -> TaskGraph:
+    """``text_hierarchy`` with the fuel added wherever a move can run the tank dry.
+
+    Navigate, Get and Put see the fuel level as well, and so do the four moves (a move's
+    reward is -20 at fuel 0): MAXQ's decomposition then keeps the -20 of running dry where the
+    root's values can see it (max node irrelevance, Dietterich 2000). Refuel keeps the taxi
+    location (it ends with a full tank whatever the fuel was, and starts only below full).
+    """
+    navs = [FuelNavigate(t) for t in range(4)]
+    names = [n.name for n in navs]
+    root = Subtask(
+        "Root", ["Get", "Put", "Refuel"], n_states=N_STATES, abstract=lambda o: o["observation"]
+    )
+    get = Subtask(
+        "Get", [*names, "Pickup"], n_states=125 * F,
+        abstract=lambda o: (o["taxi_loc"] * 5 + o["passenger"]) * F + o["fuel_level"],
+        terminated=lambda o: o["passenger"] == IN_TAXI, child_mask=_bind("passenger"),
+    )  # fmt: skip
+    put = Subtask(
+        "Put", [*names, "Putdown"], n_states=100 * F,
+        abstract=lambda o: (o["taxi_loc"] * 4 + o["destination"]) * F + o["fuel_level"],
+        terminated=lambda o: o["passenger"] != IN_TAXI, child_mask=_bind("destination"),
+    )  # fmt: skip
+    refuel = Subtask(
+        "Refuel", ["Navigate_F", "Fillup"], n_states=25, abstract=lambda o: o["taxi_loc"],
+        terminated=lambda o: o["fuel"] == CAPACITY,
+    )  # fmt: skip
+    moves = [Primitive(n, k, F, lambda o: o["fuel_level"]) for k, n in
+             enumerate(["South", "North", "East", "West"])]  # fmt: skip
+    prims = [*moves, *taxi_primitives()[4:], Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"])]
+    nodes = [root, get, put, refuel, *navs, FuelNavigateToFuel(), *prims]
     return TaskGraph("Root", nodes, n_actions=N_ACTIONS)
 
 
@@ -110,6 +171,13 @@ DOMAIN = DomainSpec(
             epsilon_first_third,
             1_000_000,
             "MAXQ-Q (Dietterich 2000), the root over the full state",
+        ),
+        "maxq-q-fuel": _spec(
+            fuel_aware_hierarchy,
+            lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            epsilon_first_third,
+            1_000_000,
+            "MAXQ-Q with the fuel in every node where a move can run dry",
         ),
         "q": _spec(
             lambda: flat_graph(N_STATES, N_ACTIONS),

@@ -28,7 +28,12 @@ from hrl_torch.experiment import RunOptions, format_summary, run_experiment
 from hrl_torch.report import compare_plot, median_or_none
 from hrl_torch.runlog import read_curves
 
-LABELS = {"maxq-q": "MAXQ-Q", "hpgrl": "HPGRL", "q": "flat Q-learning"}
+LABELS = {
+    "maxq-q": "MAXQ-Q",
+    "hpgrl": "HPGRL",
+    "q": "flat Q-learning",
+    "maxq-q-fuel": "MAXQ-Q, fuel in every node",
+}
 GREEDY, TRAINING = "charts/eval_throughput", "charts/reward_rate"
 #: greedy reward per step levels of the table (the optimal policy shows 0.265 as evaluated)
 LEVELS = (0.0, 0.15, 0.25)
