@@ -31,14 +31,15 @@ from agents.taxi import (
     get_and_put,
     taxi_primitives,
 )
-from agents.taxi_fuel import HPGRL_ALPHA, NavigateToFuel
+from agents.taxi_fuel import HPGRL_PG, NavigateToFuel
 from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
+from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.domain import AlgoSpec, DomainSpec
 from hrl_torch.exploration import Greedy
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.learners.pg import HPGRLLearner, PGConfig
+from hrl_torch.learners.pg import HPGRLLearner
 from hrl_torch.training import TrainConfig
 
 N_ACTIONS = 7
@@ -137,15 +138,16 @@ def reward_per_step(config: TrainConfig) -> ThroughputEvaluator:
     return ThroughputEvaluator(horizon=EVAL_HORIZON, burn_in=0, unit="reward per step")
 
 
-def _spec(make_graph, make_learner, exploration, steps: int, description: str) -> AlgoSpec:
+def _spec(make_graph, learner, exploration, steps: int, description: str, pg=None) -> AlgoSpec:
     train = TrainConfig(
         steps=steps, eval_every=50_000, eval_episodes=EVAL_ROWS, log_every=20_000,
         success_key="!out_of_fuel",
     )  # fmt: skip
     return AlgoSpec(
         make_graph=make_graph,
-        make_learner=make_learner,
-        make_exploration=exploration,
+        learner=learner,
+        exploration=exploration,
+        pg=pg,
         train=train,
         envs_per_learner=256,
         description=description,
@@ -160,28 +162,29 @@ DOMAIN = DomainSpec(
     algos={
         "hpgrl": _spec(
             text_hierarchy,
-            lambda g, p: HPGRLLearner(g, p, PGConfig(alpha=HPGRL_ALPHA, trace_len=200)),
-            lambda config: Greedy(),  # unused: PG nodes sample
+            Make(HPGRLLearner),
+            Make(Greedy),  # unused: PG nodes sample
             3_000_000,
             "HPGRL (Algorithm 3), tabular softmax policies, the root over the full state",
+            pg=HPGRL_PG,
         ),
         "maxq-q": _spec(
             text_hierarchy,
-            lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
             epsilon_first_third,
             1_000_000,
             "MAXQ-Q (Dietterich 2000), the root over the full state",
         ),
         "maxq-q-fuel": _spec(
             fuel_aware_hierarchy,
-            lambda g, p: MaxQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
             epsilon_first_third,
             1_000_000,
             "MAXQ-Q with the fuel in every node where a move can run dry",
         ),
         "q": _spec(
             lambda: flat_graph(N_STATES, N_ACTIONS),
-            lambda g, p: SMDPQLearner(g, p, 0.5, 1.0, init=PESSIMISTIC_INIT),
+            Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
             epsilon_first_third,
             3_000_000,
             "flat Q-learning over the 8,750 states",
