@@ -101,7 +101,7 @@ class TextParams:
     epsilon_factor: float = 1.01
     epsilon_every: int = 50
     trigger_rate: float = 0.9
-    pg_alpha: float = 0.05
+    pg_alpha: float = 0.0025
     pg_tau: float = 2_000_000.0
     flat_alpha: float = 0.005
     flat_tau: float = 2_000_000.0
@@ -109,8 +109,8 @@ class TextParams:
     sigma: float = 1.0
     out_of_bounds_reward: float = -400.0
     pretrain_target: float = 0.95
-    pretrain_episodes: int = 100_000
-    pretrain_envs: int = 64
+    pretrain_episodes: int = 20_000
+    pretrain_envs: int = 256
 
 
 TEXT = TextParams()
@@ -235,8 +235,10 @@ class HybridTextLearner(HybridLearner):
     """The hybrid whose low level is first learned on Figure 5.5's simplified tasks.
 
     ``pretrain()`` runs ``pretrain_subtask`` for both subtasks (learner ``p`` on seed ``p``) and
-    copies each learner's policy into its group; the first training policy runs it when it has
-    not run yet (a loaded checkpoint has). ``pretrain_stats`` keeps its curves.
+    copies each learner's policy into its group (``pretrained`` records it in checkpoints;
+    ``pretrain_stats`` keeps its curves). ``scripts/fig_5_7_to_5_12_ship.py`` calls it before
+    training; a run that does not (``hrl-torch train``, the generic tests) starts the low level
+    from zero inside the hierarchy, as today's ``hybrid`` does.
     """
 
     def __init__(self, *args, params: TextParams = TEXT, **kw) -> None:
@@ -255,12 +257,6 @@ class HybridTextLearner(HybridLearner):
             self.pretrain_stats[name] = stats
         self.pretrained.fill_(True)
         return self.pretrain_stats
-
-    def make_policy(self, exploration, rng, evaluate: bool = False):
-        """Pretrains first when a training policy is asked for and it has not."""
-        if not evaluate and not bool(self.pretrained):
-            self.pretrain()
-        return super().make_policy(exploration, rng, evaluate)
 
 
 def make_hybrid_text(
