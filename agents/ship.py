@@ -666,6 +666,7 @@ def _text_specs() -> dict[str, AlgoSpec]:
         for name, (graph, maker, executor, label) in specs.items()
     }
 
+
 DOMAIN = DomainSpec(
     name="ship-steering",
     description="ship steering through a gate (Miller et al. 1990; Section 5.3)",

@@ -218,9 +218,7 @@ def pretrain_subtask(subtask: int, seeds, params: TextParams = TEXT, on_step=Non
     )
     means = monitor.episodes.block_means()
     full = monitor.episodes.sums[0, :, : monitor.episodes.n_bins] >= monitor.episodes.size
-    curve = {
-        k: torch.where(full, means[k], torch.nan).tolist() for k in ("success", "steps")
-    }
+    curve = {k: torch.where(full, means[k], torch.nan).tolist() for k in ("success", "steps")}
     return learner, {
         "episodes": monitor.episodes.events.tolist(),
         "env_steps": stats["env_steps"],

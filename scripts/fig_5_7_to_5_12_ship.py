@@ -439,9 +439,7 @@ def bars(algo: str, r: dict) -> str:
     ]
     if algo in HYBRIDS:
         parts.append(f"calls {_stat(c['calls_per_episode'], 1, last)}")
-        low = [
-            np.asarray(c[f"low_level_successes/{n}"], dtype=float) / 1000 for n in SUBTASK_NAMES
-        ]
+        low = [np.asarray(c[f"low_level_successes/{n}"], dtype=float) / 1000 for n in SUBTASK_NAMES]
         parts.append("low-level " + " / ".join(_stat(v, 3) for v in low))
     parts.append(f"wall-clock {r['wall_seconds'] / 60:.1f} min ({len(r['seeds'])} seeds)")
     return " | ".join(parts)
