@@ -89,6 +89,8 @@ class TextParams:
         flat_alpha, flat_tau: flat PGRL's and the actor's ``Harmonic`` step size (ours).
         critic_alpha: the actor-critic's critic step size (ours).
         sigma: Gaussian width before the squash (text: 1).
+        pg_beta, pg_online: the low level's eligibility discount and update timing (text: 1,
+            every step; other values are the family's other members, for comparison only).
         out_of_bounds_reward: the root's reward for leaving the square (ours, see module doc).
         pretrain_target: low-level success per 1000 episodes the pretraining stops at.
         pretrain_episodes: cap on pretraining episodes per subtask and seed.
@@ -107,6 +109,8 @@ class TextParams:
     flat_tau: float = 2_000_000.0
     critic_alpha: float = 0.1
     sigma: float = 1.0
+    pg_beta: float = 1.0
+    pg_online: bool = True
     out_of_bounds_reward: float = -400.0
     pretrain_target: float = 0.95
     pretrain_episodes: int = 20_000
@@ -117,12 +121,12 @@ TEXT = TextParams()
 
 
 def low_level_config(params: TextParams = TEXT) -> PGConfig:
-    """Algorithm 3 lines 11-16 as written: every step, ``beta = 1``, decaying step size."""
+    """Algorithm 3 lines 11-16 (as written by default: every step, ``beta = 1``), decaying step."""
     return PGConfig(
         alpha=Harmonic(params.pg_alpha, params.pg_tau),
         sigma=params.sigma,
-        online=True,
-        beta=1.0,
+        online=params.pg_online,
+        beta=params.pg_beta,
         trace_len=LOW_LEVEL_GUARD,
     )
 

@@ -39,6 +39,8 @@ def test_low_level_rule_is_algorithm_3_as_written():
     cfg = low_level_config()
     assert cfg.online and cfg.beta == 1.0 and cfg.baseline == 0.0
     assert isinstance(cfg.alpha, Harmonic)
+    other = low_level_config(replace(TEXT, pg_beta=0.95, pg_online=False))  # comparisons only
+    assert not other.online and other.beta == 0.95
 
 
 def test_subtask_env_starts_at_the_local_start_and_ends_on_goal_or_box():
