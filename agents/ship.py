@@ -629,6 +629,45 @@ _TRAIN = TrainConfig(
 )
 _GUARDED = ExecutorConfig(max_subtask_steps=LOW_LEVEL_GUARD, on_timeout="abort")
 
+
+def _text(name: str):
+    """A maker of ``agents/ship_text.py``, imported when called (that module builds on this)."""
+
+    def call(*args):
+        from agents import ship_text
+
+        return getattr(ship_text, name)(*args)
+
+    call.__name__ = name
+    return call
+
+
+def _text_graph(make):
+    return lambda: make(_text("with_overrides")().out_of_bounds_reward)
+
+
+def _text_specs() -> dict[str, AlgoSpec]:
+    """The ``-text`` variants (Section 5.3's set-up, ``agents/ship_text.py``)."""
+    streams = 64  # agents.ship_text.STREAMS
+    specs = {
+        "hybrid-text": (ship_hierarchy, "make_hybrid_text", _GUARDED, "hybrid"),
+        "flat-pg-text": (flat_graph, "make_flat_pg_text", ExecutorConfig(), "flat PGRL"),
+        "actor-critic-text": (flat_graph, "make_actor_critic_text", ExecutorConfig(), "AC"),
+    }
+    return {
+        name: AlgoSpec(
+            make_graph=_text_graph(graph),
+            make_learner=_text(maker),
+            make_exploration=lambda config: EpsilonGreedy(PARAMS.epsilon),
+            train=_TRAIN,
+            envs_per_learner=streams,
+            executor=executor,
+            description=f"{label} as Section 5.3 sets it (agents/ship_text.py)",
+        )
+        for name, (graph, maker, executor, label) in specs.items()
+    }
+
+
 DOMAIN = DomainSpec(
     name="ship-steering",
     description="ship steering through a gate (Miller et al. 1990; Section 5.3)",
@@ -659,5 +698,6 @@ DOMAIN = DomainSpec(
             envs_per_learner=512,
             description="actor-critic (Konda): flat PGRL actor, 5-D tile-coded Q critic",
         ),
+        **_text_specs(),
     },
 )

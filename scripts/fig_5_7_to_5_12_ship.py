@@ -38,6 +38,12 @@ from agents.ship import (
     make_hybrid,
     ship_hierarchy,
 )
+from agents.ship_text import (
+    TEXT,
+    make_actor_critic_text,
+    make_flat_pg_text,
+    make_hybrid_text,
+)
 from envs.ship import FIGURE_5_12_STARTS, ShipSteeringEnv
 from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.collector import collect
@@ -48,6 +54,32 @@ from hrl_torch.rng import BatchRNG
 GRAPHS = {"hybrid": ship_hierarchy, "flat-pg": flat_graph, "actor-critic": flat_graph}
 MAKERS = {"hybrid": make_hybrid, "flat-pg": make_flat_pg, "actor-critic": make_actor_critic}
 LABELS = {"hybrid": "hierarchical hybrid", "flat-pg": "flat PGRL", "actor-critic": "actor-critic"}
+# the variants as Section 5.3 sets them (agents/ship_text.py): same graphs, TextParams
+for _name, _maker in (
+    ("hybrid", make_hybrid_text),
+    ("flat-pg", make_flat_pg_text),
+    ("actor-critic", make_actor_critic_text),
+):
+    GRAPHS[f"{_name}-text"] = GRAPHS[_name]
+    MAKERS[f"{_name}-text"] = _maker
+    LABELS[f"{_name}-text"] = f"{LABELS[_name]} (text's set-up)"
+HYBRIDS = ("hybrid", "hybrid-text")
+
+
+def base_params(algo: str):
+    """The hyperparameters an algorithm starts from: ``TEXT`` for the -text variants."""
+    return TEXT if algo.endswith("-text") else PARAMS
+
+
+def params_of(algo: str, overrides: dict):
+    """``base_params(algo)`` with the ``--set`` overrides that name its fields (typed)."""
+    base = base_params(algo)
+    known = {k: v for k, v in overrides.items() if hasattr(base, k)}
+    typed = {}
+    for key, value in known.items():
+        kind = type(getattr(base, key))
+        typed[key] = str(value).lower() == "true" if kind is bool else kind(value)
+    return replace(base, **typed)
 
 
 @dataclass
@@ -86,19 +118,26 @@ def parse() -> Args:
     overrides = {}
     for item in a.set:
         key, value = item.split("=")
-        kind = type(getattr(PARAMS, key))
-        overrides[key] = value.lower() == "true" if kind is bool else kind(value)
+        if not (hasattr(PARAMS, key) or hasattr(TEXT, key)):
+            parser.error(f"--set {key}: not a ShipHyperparams or TextParams field")
+        overrides[key] = value
     return Args(a.algos, a.seeds, a.episodes, a.envs, a.out, a.max_minutes, a.plot_only, overrides)
 
 
 def train(algo: str, args: Args, out: Path) -> dict:
     """Train one algorithm's population; save its curves and learner."""
     spec = DOMAIN.algos[algo]
-    params = replace(PARAMS, **args.overrides)
+    params = params_of(algo, args.overrides)
     envs = args.envs or spec.envs_per_learner
     seeds = list(range(args.seeds))
     graph = GRAPHS[algo](params.out_of_bounds_reward)
     learner = MAKERS[algo](graph, len(seeds), params)
+    pretrain = {}
+    if hasattr(learner, "pretrain"):  # hybrid-text: the low level alone first (Figure 5.5)
+        print(f"{algo}: low-level subtasks alone until {params.pretrain_target:.0%} success")
+        pretrain = learner.pretrain(seeds)
+        for name, st in pretrain.items():
+            print(f"  {name}: {st['episodes']} episodes, {st['seconds']:.0f} s")
     env = ShipSteeringEnv(seeds, envs)
     rng = BatchRNG(seeds, envs, "explore")
     exploration = spec.make_exploration(spec.train)
@@ -132,7 +171,8 @@ def train(algo: str, args: Args, out: Path) -> dict:
         "envs_per_learner": envs,
         "episodes_per_seed": monitor.episodes.events.tolist(),
         "params": asdict(params),
-        "wall_seconds": stats["seconds"],
+        "wall_seconds": stats["seconds"] + sum(st["seconds"] for st in pretrain.values()),
+        "pretrain": pretrain,
         "env_steps": stats["env_steps"],
         "env_steps_per_second": stats["env_steps_per_second"],
         "curves": curves(monitor),
@@ -243,7 +283,7 @@ def figures(results: dict, out: Path) -> list[Path]:
 
     specs = [
         ("fig_5_7.png", "gate_successes", "successful trials per 1000 episodes", list(results)),
-        ("fig_5_8.png", "calls_per_episode", "low-level subtask calls per episode", ["hybrid"]),
+        ("fig_5_8.png", "calls_per_episode", "low-level subtask calls per episode", HYBRIDS),
         ("fig_5_9.png", "steps_per_episode", "primitive steps per episode", list(results)),
     ]
     specs += [
@@ -251,7 +291,7 @@ def figures(results: dict, out: Path) -> list[Path]:
             f"fig_5_{10 + k}.png",
             f"low_level_successes/{name}",
             f"{name} subtask: successes per 1000 executions",
-            ["hybrid"],
+            HYBRIDS,
         )
         for k, name in enumerate(SUBTASK_NAMES)
     ]
@@ -288,17 +328,39 @@ def figures(results: dict, out: Path) -> list[Path]:
     return paths
 
 
-def figure_5_12(result: dict, out: Path) -> Path:
+def figure_pretrain(result: dict, out: Path) -> Path:
+    """The low-level subtasks' own learning curves (hybrid-text's pretraining, Figure 5.5)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4))
+    for name, st in result["pretrain"].items():
+        blocks = min(st["episodes"]) // 1000
+        _curve(ax, np.asarray(st["success_per_block"], dtype=float)[:, :blocks], name, 1000)
+    ax.set_xlabel("episodes of the subtask alone (Figure 5.5)")
+    ax.set_ylabel("successes per 1000 episodes")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out / "fig_low_level_pretrain.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def figure_5_12(result: dict, out: Path, algo: str = "hybrid") -> Path:
     """Greedy trajectories of the learned hybrid from the two starts of Section 5.3."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    params = replace(PARAMS, **result["params"])
+    params = replace(base_params(algo), **result["params"])
     graph = ship_hierarchy(params.out_of_bounds_reward)
-    learner = make_hybrid(graph, len(result["seeds"]), params)
-    learner.load_state_dict(torch.load(out / "hybrid.pt", weights_only=True))
+    learner = MAKERS[algo](graph, len(result["seeds"]), params)
+    learner.load_state_dict(torch.load(out / f"{algo}.pt", weights_only=True))
     positions, success, calls = greedy_paths(learner, graph, FIGURE_5_12_STARTS)
     n = len(FIGURE_5_12_STARTS)
     fig, axes = plt.subplots(1, learner.n_learners, figsize=(3.2 * learner.n_learners, 3.4))
@@ -315,7 +377,7 @@ def figure_5_12(result: dict, out: Path) -> Path:
         ax.set(xlim=(0, 1000), ylim=(0, 1000), aspect="equal", title=f"seed {p}: {ok}/{n} gate")
         ax.tick_params(labelsize=6)
     fig.tight_layout()
-    path = out / "fig_5_12.png"
+    path = out / ("fig_5_12.png" if algo == "hybrid" else f"fig_5_12_{algo}.png")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -361,6 +423,28 @@ def table(results: dict) -> str:
     return "\n".join(rows)
 
 
+def bars(algo: str, r: dict) -> str:
+    """One summary line: gate success, steps, calls, low-level success, wall-clock.
+
+    The last block of 1000 episodes within the budget, mean (min-max) over seeds; steps also
+    over the successful episodes alone; low-level: each seed's last block of 1000 executions.
+    """
+    c = r["curves"]
+    last = min(r["episodes_per_seed"]) // c["episodes_per_block"] - 1
+    success = np.asarray(c["gate_successes"], dtype=float) / c["episodes_per_block"]
+    parts = [
+        f"bars {algo}: success {_stat(success, 3, last)}",
+        f"steps {_stat(c['steps_per_episode'], 0, last)}",
+        f"steps (successful) {_stat(c['steps_to_gate'], 0, last)}",
+    ]
+    if algo in HYBRIDS:
+        parts.append(f"calls {_stat(c['calls_per_episode'], 1, last)}")
+        low = [np.asarray(c[f"low_level_successes/{n}"], dtype=float) / 1000 for n in SUBTASK_NAMES]
+        parts.append("low-level " + " / ".join(_stat(v, 3) for v in low))
+    parts.append(f"wall-clock {r['wall_seconds'] / 60:.1f} min ({len(r['seeds'])} seeds)")
+    return " | ".join(parts)
+
+
 def main() -> None:
     torch.set_num_threads(1)
     args = parse()
@@ -378,11 +462,16 @@ def main() -> None:
         if algo not in results and path.exists():
             results[algo] = json.loads(path.read_text())
     paths = figures(results, out)
-    if "hybrid" in results and (out / "hybrid.pt").exists():
-        paths.append(figure_5_12(results["hybrid"], out))
+    for algo in HYBRIDS:
+        if algo in results and (out / f"{algo}.pt").exists():
+            paths.append(figure_5_12(results[algo], out, algo))
+        if results.get(algo, {}).get("pretrain"):
+            paths.append(figure_pretrain(results[algo], out))
     text = table(results)
     (out / "table.md").write_text(text + "\n")
     print(text)
+    for algo, r in results.items():
+        print(bars(algo, r))
     print("figures:", ", ".join(str(p) for p in paths))
 
 

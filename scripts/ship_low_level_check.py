@@ -12,6 +12,7 @@ Prints the success rate per seed and, per band of the initial heading error, for
 the controller (docs/reproduction.md, "Why the low level is the bottleneck").
 
     python scripts/ship_low_level_check.py --run runs/ship
+    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from agents.ship import (
     make_hybrid,
     ship_hierarchy,
 )
+from agents.ship_text import TEXT, make_hybrid_text
 from envs.ship import MAX_TURN, ship_dynamics, wrap_degrees
 from hrl_torch.policies import squash
 
@@ -93,9 +95,13 @@ def main() -> None:
     parser.add_argument("--run", default="runs/ship", help="folder holding hybrid.pt")
     parser.add_argument("--seeds", type=int, default=5, help="learners in the saved hybrid")
     parser.add_argument("--starts", type=int, default=20_000)
+    parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-text"])
     a = parser.parse_args()
-    learner = make_hybrid(ship_hierarchy(PARAMS.out_of_bounds_reward), a.seeds, PARAMS)
-    state = torch.load(f"{a.run}/hybrid.pt", weights_only=True)
+    if a.algo == "hybrid":
+        learner = make_hybrid(ship_hierarchy(PARAMS.out_of_bounds_reward), a.seeds, PARAMS)
+    else:
+        learner = make_hybrid_text(ship_hierarchy(TEXT.out_of_bounds_reward), a.seeds, TEXT)
+    state = torch.load(f"{a.run}/{a.algo}.pt", weights_only=True)
     for key, value in learner.state_dict().items():  # runs saved before PGConfig.baseline
         if key.endswith("reward_to_go_mean"):
             state.setdefault(key, torch.zeros_like(value))
