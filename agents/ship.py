@@ -657,8 +657,8 @@ def _text_specs() -> dict[str, AlgoSpec]:
     return {
         name: AlgoSpec(
             make_graph=_text_graph(graph),
-            make_learner=_text(maker),
-            make_exploration=lambda config: EpsilonGreedy(PARAMS.epsilon),
+            learner=_text(maker),  # a plain maker: its TextParams are not swept by name
+            exploration=Make(EpsilonGreedy, epsilon=PARAMS.epsilon),
             train=_TRAIN,
             envs_per_learner=streams,
             executor=executor,
