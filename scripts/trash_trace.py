@@ -27,7 +27,7 @@ from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation
+from hrl_torch.multiagent import Cooperation, CooperativeSubtask, cooperation_levels
 from scripts.trash_exact import exact_gains
 
 
@@ -36,7 +36,9 @@ def _arguments() -> argparse.Namespace:
     p.add_argument("--algo", default="cooperative", choices=("cooperative", "selfish"))
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--steps", type=int, default=150_000)
-    p.add_argument("--alpha", default="0.2", help="a number, or lin:START:END over the run")
+    p.add_argument(
+        "--alpha", default="0.2", help="a number, lin:START:END over the run, or visits:HI:LO"
+    )
     p.add_argument("--eps-frac", type=float, default=0.5, help="epsilon decays over this share")
     p.add_argument("--broadcast", default="sequential", choices=("sequential", "simultaneous"))
     p.add_argument("--scheme", default="continue", choices=("continue", "any", "all"))
@@ -45,6 +47,7 @@ def _arguments() -> argparse.Namespace:
     p.add_argument("--team-root", action="store_true", help="others' dumps: root's internal r")
     p.add_argument("--two-levels", action="store_true", help="Collect subtasks cooperative too")
     p.add_argument("--shared-tables", action="store_true", help="both robots learn one table")
+    p.add_argument("--collect-u1", action="store_true", help="CollectTk knows the other's U_1")
     return p.parse_args()
 
 
@@ -60,20 +63,60 @@ def _team_hierarchy() -> TaskGraph:
     return TaskGraph("Root", [root, *T._collection_nodes()], n_actions=T.N_ACTIONS)
 
 
+def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearner:
+    """Per-entry step size ``alpha_t(i) = clip(1 / n, low, high)``, ``n`` the entry's updates
+    so far, this one included (Section 6.3: "This parameter should be gradually decreased to
+    zero in time limit"; ``low`` keeps tracking the other robot's changing policy)."""
+    tables = learner.tables
+    counts = torch.zeros_like(tables.store)
+    plain = tables.update
+
+    def update(flat_index, target, alpha, mask, distinct=False):
+        index = flat_index.masked_fill(~mask, tables.sentinel)
+        counts.index_put_((index.reshape(-1),), torch.ones(index.numel()), accumulate=True)
+        step = (1.0 / torch.take(counts, index).clamp_min(1.0)).clamp(low, high)
+        return plain(flat_index, target, step, mask, distinct)
+
+    tables.update = update
+    return learner
+
+
+def collect_knows_u1(graph: TaskGraph, cooperation: Cooperation) -> TaskGraph:
+    """``graph`` with ``CollectT1``, ``CollectT2`` indexed by the other robot's ``U_1`` task too:
+    their projected values ``V(CollectTk, s, a~)`` are conditioned on it, not marginalized
+    (Eq. 6.1's joint projected value, here over the parent's level: a lost race is then
+    charged to racing)."""
+    level = cooperation_levels(graph, cooperation, 2)[0]
+    nodes = list(graph.nodes)
+    for name in ("CollectT1", "CollectT2"):
+        nodes[graph.index[name]] = CooperativeSubtask(
+            nodes[graph.index[name]], level.key, level.radix
+        )
+    return TaskGraph(graph.root_name, nodes, graph.n_actions)
+
+
+def _alpha(a: argparse.Namespace):
+    """``(alpha, (high, low) for a per-entry 1/n step size or None)``."""
+    kind, *ends = a.alpha.split(":")
+    if kind == "lin":
+        return Linear(float(ends[0]), float(ends[1]), a.steps), None
+    if kind == "visits":
+        return float(ends[0]), (float(ends[0]), float(ends[1]))
+    return float(a.alpha), None
+
+
 def _variant(a: argparse.Namespace):
     """The trash domain with ``a.algo`` changed as asked, and its multi-agent config."""
     dom = registry.get("trash")
-    alpha = float(a.alpha) if not a.alpha.startswith("lin") else None
-    if alpha is None:
-        _, start, end = a.alpha.split(":")
-        alpha = Linear(float(start), float(end), a.steps)
+    alpha, visits = _alpha(a)
     init_nodes = None if a.root_init is None else {"Root": a.root_init}
 
     def learner(graph, sets):
-        return MaxQLearner(
+        made = MaxQLearner(
             graph, sets, alpha, T.GAMMA, all_states=bool(a.visited), init=T.INIT,
             init_nodes=init_nodes,
         )  # fmt: skip
+        return made if visits is None else visit_step_size(made, *visits)
 
     levels = (("Root",), ("CollectT1", "CollectT2")) if a.two_levels else (("Root",),)
     cooperation = Cooperation(levels, wait="Wait", broadcast=a.broadcast)
@@ -88,9 +131,12 @@ def _variant(a: argparse.Namespace):
         config = replace(
             spec.multiagent, cooperation=cooperation, scheme=a.scheme, shared_tables=a.shared_tables
         )
-        spec = replace(
-            spec, make_graph=lambda: T.cooperative_graph(base(), cooperation, 2), multiagent=config
-        )
+
+        def graph():
+            joint = T.cooperative_graph(base(), cooperation, 2)
+            return collect_knows_u1(joint, cooperation) if a.collect_u1 else joint
+
+        spec = replace(spec, make_graph=graph, multiagent=config)
     return replace(dom, algos={**dom.algos, a.algo: spec}), spec.multiagent
 
 
