@@ -3,12 +3,15 @@
 Every variant starts from the setup of ``scripts/trash_exact.py`` with the completions of every
 subtask starting at -10 (the setup before issue 22) and changes one thing or a few: the broadcast
 rule, the root's initial completions, the step size, exploration, all-states updating, the
-termination scheme, a team utility at the root, a second cooperation level. The rows of the
-trace table in ``docs/reproduction.md`` ("Trash collection") came from it::
+termination scheme, a team utility at the root, a second cooperation level, a per-entry 1/n
+step size, Collect subtasks that know the other robot's ``U_1`` task. The rows of the trace
+tables in ``docs/reproduction.md`` ("Trash collection") came from it::
 
     python scripts/trash_trace.py --broadcast simultaneous            # as before issue 22
     python scripts/trash_trace.py --root-init 0                       # the new default
     python scripts/trash_trace.py --root-init 0 --alpha lin:0.2:0.02 --steps 300000
+    python scripts/trash_trace.py --algo selfish --alpha visits:0.2:0.01
+    python scripts/trash_trace.py --root-init 0 --collect-u1
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import replace
 import torch
 
 from agents import trash as T
+from agents.trash import visit_step_size
 from envs.trash import DUMP_REWARD
 from hrl_torch import registry
 from hrl_torch.executor import ExecutorConfig
@@ -61,24 +65,6 @@ def _team_hierarchy() -> TaskGraph:
         shaping_reward=lambda o, a, o2: DUMP_REWARD * (o2["n_dumped"] - o2["dumped"]).float(),
     )
     return TaskGraph("Root", [root, *T._collection_nodes()], n_actions=T.N_ACTIONS)
-
-
-def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearner:
-    """Per-entry step size ``alpha_t(i) = clip(1 / n, low, high)``, ``n`` the entry's updates
-    so far, this one included (Section 6.3: "This parameter should be gradually decreased to
-    zero in time limit"; ``low`` keeps tracking the other robot's changing policy)."""
-    tables = learner.tables
-    counts = torch.zeros_like(tables.store)
-    plain = tables.update
-
-    def update(flat_index, target, alpha, mask, distinct=False):
-        index = flat_index.masked_fill(~mask, tables.sentinel)
-        counts.index_put_((index.reshape(-1),), torch.ones(index.numel()), accumulate=True)
-        step = (1.0 / torch.take(counts, index).clamp_min(1.0)).clamp(low, high)
-        return plain(flat_index, target, step, mask, distinct)
-
-    tables.update = update
-    return learner
 
 
 def collect_knows_u1(graph: TaskGraph, cooperation: Cooperation) -> TaskGraph:
