@@ -39,6 +39,7 @@ def _arguments() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algo", default="cooperative", choices=("cooperative", "selfish"))
     p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--first-seed", type=int, default=0, help="the first seed")
     p.add_argument("--steps", type=int, default=150_000)
     p.add_argument(
         "--alpha", default="0.2", help="a number, lin:START:END over the run, or visits:HI:LO"
@@ -131,7 +132,8 @@ def main() -> None:
     torch.set_num_threads(1)
     domain, config = _variant(a)
     start = time.perf_counter()
-    opts = RunOptions(seeds=list(range(a.seeds)), steps=a.steps, progress=False, tensorboard=False)
+    seeds = list(range(a.first_seed, a.first_seed + a.seeds))
+    opts = RunOptions(seeds=seeds, steps=a.steps, progress=False, tensorboard=False)
     trainer = build_trainer(domain, a.algo, opts)
     trainer.config.eval_every = 0
     trainer.train()
