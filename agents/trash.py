@@ -210,6 +210,53 @@ COOPERATIVE_ROOT_INIT = 0.0
 _MAXQ_COOPERATIVE = _MAXQ.with_argument("init_nodes", {"Root": COOPERATIVE_ROOT_INIT})
 
 
+#: the per-entry step size of the ``-visits`` algorithms: ``clip(1 / n, LOW, HIGH)``
+VISIT_STEP = (0.2, 0.01)
+#: their budget: the 1/n step size pays off with a longer run (issue 22: Cooperative 1.437 at
+#: 150,000 steps, 1.467 at 600,000; docs/reproduction.md, trash)
+VISIT_STEPS = 600_000
+
+
+def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearner:
+    """Give every table entry its own step size ``alpha_t = clip(1 / n, low, high)``.
+
+    ``n`` counts the entry's updates so far, this one included (Section 6.3: ``alpha_t(i)``
+    "should be gradually decreased to zero"; the floor ``low`` keeps tracking the other
+    robot's changing policy). The counts are the learner's buffer ``visit_counts`` (they move
+    and are saved with it).
+    """
+    if not 0.0 < low <= high <= 1.0:
+        raise ValueError(f"visit step size needs 0 < low <= high <= 1, got {low}, {high}")
+    tables = learner.tables
+    learner.register_buffer("visit_counts", torch.zeros_like(tables.store))
+    plain = tables.update
+
+    def update(flat_index, target, alpha, mask, distinct=False):
+        counts = learner.visit_counts
+        index = flat_index.masked_fill(~mask, tables.sentinel)
+        ones = torch.ones(index.numel(), dtype=counts.dtype, device=counts.device)
+        counts.index_put_((index.reshape(-1),), ones, accumulate=True)
+        step = (1.0 / torch.take(counts, index).clamp_min(1.0)).clamp(low, high)
+        return plain(flat_index, target, step, mask, distinct)
+
+    tables.update = update
+    return learner
+
+
+def maxq_visits(
+    graph: TaskGraph, sets: int, high: float = VISIT_STEP[0], low: float = VISIT_STEP[1]
+) -> MaxQLearner:
+    """The selfish robots' MAXQ-Q with the per-entry step size ``clip(1 / n, low, high)``."""
+    return visit_step_size(_MAXQ.build(graph, sets), high, low)
+
+
+def maxq_cooperative_visits(
+    graph: TaskGraph, sets: int, high: float = VISIT_STEP[0], low: float = VISIT_STEP[1]
+) -> MaxQLearner:
+    """The cooperative root's MAXQ-Q with the per-entry step size ``clip(1 / n, low, high)``."""
+    return visit_step_size(_MAXQ_COOPERATIVE.build(graph, sets), high, low)
+
+
 def _evaluator(config: TrainConfig) -> ThroughputEvaluator:
     """The team's reward per step (the gain), greedy and in training."""
     return ThroughputEvaluator(horizon=500, burn_in=100, unit="team reward per step")
@@ -223,17 +270,30 @@ def _algos() -> dict[str, AlgoSpec]:
         envs_per_learner=16,
     )
 
-    return {
-        "cooperative": replace(
-            spec(
-                lambda: cooperative_graph(trash_hierarchy(), COOPERATION, 2),
-                "Cooperative HRL: the root's completions know the other robot's U_1 task",
-                MultiAgentConfig(COOPERATION),
-            ),
-            learner=_MAXQ_COOPERATIVE,
+    cooperative = replace(
+        spec(
+            lambda: cooperative_graph(trash_hierarchy(), COOPERATION, 2),
+            "Cooperative HRL: the root's completions know the other robot's U_1 task",
+            MultiAgentConfig(COOPERATION),
         ),
-        "selfish": spec(trash_hierarchy, "selfish multi-agent HRL: each robot learns alone"),
+        learner=_MAXQ_COOPERATIVE,
+    )
+    selfish = spec(trash_hierarchy, "selfish multi-agent HRL: each robot learns alone")
+    longer = replace(spec(trash_hierarchy, "").train, steps=VISIT_STEPS)
+    visits = " with a per-entry 1/n step size in [0.01, 0.2], 600,000 steps"
+    return {
+        "cooperative": cooperative,
+        "selfish": selfish,
         "single": spec(trash_hierarchy, "single-agent HRL: one robot", n_agents=1),
+        "cooperative-visits": replace(
+            cooperative,
+            learner=Make(maxq_cooperative_visits),
+            train=longer,
+            description="Cooperative HRL" + visits,
+        ),
+        "selfish-visits": replace(
+            selfish, learner=Make(maxq_visits), train=longer, description="selfish HRL" + visits
+        ),
     }
 
 

@@ -3,12 +3,15 @@
 Every variant starts from the setup of ``scripts/trash_exact.py`` with the completions of every
 subtask starting at -10 (the setup before issue 22) and changes one thing or a few: the broadcast
 rule, the root's initial completions, the step size, exploration, all-states updating, the
-termination scheme, a team utility at the root, a second cooperation level. The rows of the
-trace table in ``docs/reproduction.md`` ("Trash collection") came from it::
+termination scheme, a team utility at the root, a second cooperation level, a per-entry 1/n
+step size, Collect subtasks that know the other robot's ``U_1`` task. The rows of the trace
+tables in ``docs/reproduction.md`` ("Trash collection") came from it::
 
     python scripts/trash_trace.py --broadcast simultaneous            # as before issue 22
     python scripts/trash_trace.py --root-init 0                       # the new default
     python scripts/trash_trace.py --root-init 0 --alpha lin:0.2:0.02 --steps 300000
+    python scripts/trash_trace.py --algo selfish --alpha visits:0.2:0.01
+    python scripts/trash_trace.py --root-init 0 --collect-u1
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import replace
 import torch
 
 from agents import trash as T
+from agents.trash import visit_step_size
 from envs.trash import DUMP_REWARD
 from hrl_torch import registry
 from hrl_torch.executor import ExecutorConfig
@@ -27,7 +31,7 @@ from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation
+from hrl_torch.multiagent import Cooperation, CooperativeSubtask, cooperation_levels
 from scripts.trash_exact import exact_gains
 
 
@@ -35,8 +39,11 @@ def _arguments() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algo", default="cooperative", choices=("cooperative", "selfish"))
     p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--first-seed", type=int, default=0, help="the first seed")
     p.add_argument("--steps", type=int, default=150_000)
-    p.add_argument("--alpha", default="0.2", help="a number, or lin:START:END over the run")
+    p.add_argument(
+        "--alpha", default="0.2", help="a number, lin:START:END over the run, or visits:HI:LO"
+    )
     p.add_argument("--eps-frac", type=float, default=0.5, help="epsilon decays over this share")
     p.add_argument("--broadcast", default="sequential", choices=("sequential", "simultaneous"))
     p.add_argument("--scheme", default="continue", choices=("continue", "any", "all"))
@@ -45,6 +52,7 @@ def _arguments() -> argparse.Namespace:
     p.add_argument("--team-root", action="store_true", help="others' dumps: root's internal r")
     p.add_argument("--two-levels", action="store_true", help="Collect subtasks cooperative too")
     p.add_argument("--shared-tables", action="store_true", help="both robots learn one table")
+    p.add_argument("--collect-u1", action="store_true", help="CollectTk knows the other's U_1")
     return p.parse_args()
 
 
@@ -60,20 +68,42 @@ def _team_hierarchy() -> TaskGraph:
     return TaskGraph("Root", [root, *T._collection_nodes()], n_actions=T.N_ACTIONS)
 
 
+def collect_knows_u1(graph: TaskGraph, cooperation: Cooperation) -> TaskGraph:
+    """``graph`` with ``CollectT1``, ``CollectT2`` indexed by the other robot's ``U_1`` task too:
+    their projected values ``V(CollectTk, s, a~)`` are conditioned on it, not marginalized
+    (Eq. 6.1's joint projected value, here over the parent's level: a lost race is then
+    charged to racing)."""
+    level = cooperation_levels(graph, cooperation, 2)[0]
+    nodes = list(graph.nodes)
+    for name in ("CollectT1", "CollectT2"):
+        nodes[graph.index[name]] = CooperativeSubtask(
+            nodes[graph.index[name]], level.key, level.radix
+        )
+    return TaskGraph(graph.root_name, nodes, graph.n_actions)
+
+
+def _alpha(a: argparse.Namespace):
+    """``(alpha, (high, low) for a per-entry 1/n step size or None)``."""
+    kind, *ends = a.alpha.split(":")
+    if kind == "lin":
+        return Linear(float(ends[0]), float(ends[1]), a.steps), None
+    if kind == "visits":
+        return float(ends[0]), (float(ends[0]), float(ends[1]))
+    return float(a.alpha), None
+
+
 def _variant(a: argparse.Namespace):
     """The trash domain with ``a.algo`` changed as asked, and its multi-agent config."""
     dom = registry.get("trash")
-    alpha = float(a.alpha) if not a.alpha.startswith("lin") else None
-    if alpha is None:
-        _, start, end = a.alpha.split(":")
-        alpha = Linear(float(start), float(end), a.steps)
+    alpha, visits = _alpha(a)
     init_nodes = None if a.root_init is None else {"Root": a.root_init}
 
     def learner(graph, sets):
-        return MaxQLearner(
+        made = MaxQLearner(
             graph, sets, alpha, T.GAMMA, all_states=bool(a.visited), init=T.INIT,
             init_nodes=init_nodes,
         )  # fmt: skip
+        return made if visits is None else visit_step_size(made, *visits)
 
     levels = (("Root",), ("CollectT1", "CollectT2")) if a.two_levels else (("Root",),)
     cooperation = Cooperation(levels, wait="Wait", broadcast=a.broadcast)
@@ -88,9 +118,12 @@ def _variant(a: argparse.Namespace):
         config = replace(
             spec.multiagent, cooperation=cooperation, scheme=a.scheme, shared_tables=a.shared_tables
         )
-        spec = replace(
-            spec, make_graph=lambda: T.cooperative_graph(base(), cooperation, 2), multiagent=config
-        )
+
+        def graph():
+            joint = T.cooperative_graph(base(), cooperation, 2)
+            return collect_knows_u1(joint, cooperation) if a.collect_u1 else joint
+
+        spec = replace(spec, make_graph=graph, multiagent=config)
     return replace(dom, algos={**dom.algos, a.algo: spec}), spec.multiagent
 
 
@@ -99,7 +132,8 @@ def main() -> None:
     torch.set_num_threads(1)
     domain, config = _variant(a)
     start = time.perf_counter()
-    opts = RunOptions(seeds=list(range(a.seeds)), steps=a.steps, progress=False, tensorboard=False)
+    seeds = list(range(a.first_seed, a.first_seed + a.seeds))
+    opts = RunOptions(seeds=seeds, steps=a.steps, progress=False, tensorboard=False)
     trainer = build_trainer(domain, a.algo, opts)
     trainer.config.eval_every = 0
     trainer.train()
