@@ -166,4 +166,13 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs", help="parent of the sweep folder (default: runs)")
     p.add_argument("--name", default=None, help="sweep folder (default: DOMAIN__ALGO__sweep)")
     p.add_argument("--resume", action="store_true", help="continue the sweep in its folder")
+    p.add_argument(
+        "--population",
+        action="store_true",
+        help="train the whole grid x seeds as one population in this process (no Ray; the "
+        "settings that differ must be per-learner ones: learner.alpha, exploration.epsilon.*)",
+    )
+    p.add_argument(
+        "--device", type=device, default="cpu", help="with --population: cpu (default), cuda, ..."
+    )
     return p

@@ -68,7 +68,7 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
     for item in items:
         name, sep, values = item.partition("=")
         name = name.strip()
-        if not sep or not name.isidentifier():
+        if not sep or not all(part.isidentifier() for part in name.split(".")):
             raise ValueError(f"grid item {item!r}: expected NAME=V1,V2,... (e.g. alpha=0.1,0.5)")
         if name in grid:
             raise ValueError(f"grid item {item!r}: {name} is given twice")

@@ -17,6 +17,7 @@ from torch import nn
 from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
 from hrl_torch.ops import group_of_rows, lookup
+from hrl_torch.per_learner import at_entries
 
 
 class TableLayout(MovesTensorAttrs, nn.Module):
@@ -99,8 +100,9 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         Every entry hit by ``n`` rows in this batch takes the ``n`` same-step updates at once,
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
         Shapes: ``flat_index``, ``target``, ``mask`` of one shape (each element a row);
-        ``alpha`` scalar or that shape. Returns each row's entry before the update (0 for
-        masked rows), in that shape.
+        ``alpha`` a number or a per-learner tensor ``[P]`` (``hrl_torch.per_learner``: an
+        entry of learner ``p`` moves with ``alpha[p]``). Returns each row's entry before the
+        update (0 for masked rows), in that shape.
 
         ``distinct``: the caller knows that no two unmasked rows hit one entry (each row of
         its batch belongs to another learner, and one row's entries differ), so ``n <= 1``
@@ -108,20 +110,21 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
+        rho = at_entries(1.0 - alpha, index, self.stride, flat.dtype)  # 1 - alpha of each row
         if distinct:
             old = torch.take(flat, index)
             mean = torch.nan_to_num(target)
-            new = mean + (1.0 - alpha) * (old - mean)  # (the n = 1 case below, op for op)
+            new = mean + rho * (old - mean)  # (the n = 1 case below, op for op)
             flat.index_put_((index,), torch.where(mask, new, old))
             return old
         shape = index.shape
         index, target, mask = index.reshape(-1), target.reshape(-1), mask.reshape(-1)
-        if isinstance(alpha, torch.Tensor) and alpha.dim():
-            alpha = alpha.reshape(-1)
+        if isinstance(rho, torch.Tensor):
+            rho = rho.reshape(-1)
         weight = mask.to(flat.dtype)
         weighted = torch.stack([weight, torch.nan_to_num(target)]) * weight
         n, total = self._count_and_sum(index, weighted)
-        keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
+        keep = rho**n  # (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
         mean = total / n.clamp_min(1.0)
         old = flat.index_select(0, index)
         flat.index_put_((index,), mean + keep * (old - mean))

@@ -4,17 +4,31 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from hrl_torch.exploration import Constant, Exponential, Linear, Schedule
 
 
 def schedule_values(value: float | Schedule) -> list[float]:
-    """The values a number or schedule can take at its ends (what a range check needs)."""
+    """The values a number or schedule can take at its ends (what a range check needs).
+
+    Per-learner values (``hrl_torch.per_learner``) give every learner's (read at construction).
+    """
     if isinstance(value, Constant):
-        return [value.value]
+        return _numbers(value.value)
     if isinstance(value, Linear):
-        return [value.start, value.end]
+        return _numbers(value.start) + _numbers(value.end)
     if isinstance(value, Exponential):
-        return [value.start, max(value.minimum, 0.0)] if value.decay <= 1 else [math.inf]
+        if max(_numbers(value.decay)) > 1:
+            return [math.inf]
+        return _numbers(value.start) + [max(m, 0.0) for m in _numbers(value.minimum)]
+    return _numbers(value)
+
+
+def _numbers(value) -> list[float]:
+    """A number, or a tensor's numbers, as floats."""
+    if isinstance(value, torch.Tensor):
+        return [float(v) for v in value.reshape(-1).tolist()]
     return [float(value)]
 
 

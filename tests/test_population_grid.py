@@ -1,0 +1,138 @@
+"""A grid of configurations x seeds as one population equals its separate runs, table for table.
+
+Also: a per-learner tensor of equal values gives the number's tables bit for bit, what cannot
+be per learner is refused, and ``hrl-torch sweep --population`` writes the sweep's table.
+"""
+
+import argparse
+import csv
+import json
+
+import pytest
+import torch
+
+import agents  # noqa: F401  (registers the domains)
+from agents.taxi import flat_graph, taxi_hierarchy
+from envs.taxi import TaxiEnv
+from hrl_torch import registry
+from hrl_torch.cli_parser import add_sweep_parser
+from hrl_torch.executor import ExecutorConfig
+from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.learners import HPGRLLearner, MaxQLearner, QLambdaLearner, SMDPQLearner
+from hrl_torch.learners.pg import PGConfig
+from hrl_torch.population_grid import (
+    population_values,
+    run_population_command,
+    train_grid,
+    with_values,
+)
+from hrl_torch.tables import TableBank
+from hrl_torch.trainer import TrainConfig, Trainer
+
+SEEDS = [0, 1, 2, 3, 4]
+#: shared by every configuration: a small budget (600 batched steps of 2 envs per seed)
+FIXED = {"steps": 1200, "envs_per_learner": 2, "eval_episodes": 3, "eval_every": 0}
+
+
+def tables(trainer) -> dict[str, torch.Tensor]:
+    """Every table bank's ``[P, total]`` tables."""
+    banks = {n: m for n, m in trainer.learner.named_modules() if isinstance(m, TableBank)}
+    return {n: m.data.clone() for n, m in banks.items()}
+
+
+def test_a_4x2_grid_of_5_seeds_as_one_population_equals_the_8_separate_runs():
+    taxi = registry.get("taxi")
+    grid = [
+        {**FIXED, "learner.alpha": a, "exploration.epsilon.end": e}
+        for a in (0.1, 0.2, 0.3, 0.5)
+        for e in (0.05, 0.3)
+    ]
+    together, result = train_grid(taxi, "maxq-q", grid, SEEDS)
+    pop = tables(together)
+    s = len(SEEDS)
+    for c, config in enumerate(grid):
+        alone, alone_result = train_grid(taxi, "maxq-q", [config], SEEDS)  # numbers, not tensors
+        for name, value in tables(alone).items():
+            assert torch.equal(value, pop[name][c * s : (c + 1) * s]), (config, name)
+        assert alone_result.final_eval == result.final_eval[c * s : (c + 1) * s], config
+    # the values reached the learners: the configurations' tables differ (seed 0 of each)
+    first = [pop["C"][c * s] for c in range(len(grid))]
+    assert all(not torch.equal(first[0], other) for other in first[1:])
+
+
+def trainer_with(seeds, alpha, end, learner_cls, graph_fn, envs):
+    graph = graph_fn()
+    learner = learner_cls(graph, len(seeds), alpha=alpha, gamma=0.95)
+    config = TrainConfig(steps=10**9, eval_every=0, eval_episodes=0, progress=False)
+    exploration = EpsilonGreedy(Linear(1.0, end, 400 * envs))
+    return Trainer(TaxiEnv(seeds, envs), graph, learner, exploration, config, None, ExecutorConfig())
+
+
+@pytest.mark.parametrize("envs", [1, 4])  # 1: the plain update of distinct rows; 4: grouped
+@pytest.mark.parametrize(
+    "learner_cls,graph_fn",
+    [(MaxQLearner, taxi_hierarchy), (SMDPQLearner, flat_graph), (QLambdaLearner, taxi_hierarchy)],
+)
+def test_a_tensor_of_equal_values_gives_the_numbers_tables(learner_cls, graph_fn, envs):
+    seeds = [3, 11, 42]
+    same = torch.full((len(seeds),), 0.3)
+    numbers = trainer_with(seeds, 0.3, 0.1, learner_cls, graph_fn, envs)
+    tensors = trainer_with(seeds, same, torch.full((3,), 0.1), learner_cls, graph_fn, envs)
+    numbers.train(steps=600 * envs)
+    tensors.train(steps=600 * envs)
+    for name, value in tables(numbers).items():
+        assert torch.equal(value, tables(tensors)[name]), name
+    assert any((t != 0).any() for t in tables(numbers).values())  # trained
+
+
+def test_population_values_are_configuration_major_and_shared_values_stay_numbers():
+    grid = [{"alpha": a, "init": -20} for a in (0.1, 0.5)]
+    values = population_values(grid, 3)
+    assert values["init"] == -20
+    assert values["alpha"].tolist() == [0.1, 0.1, 0.1, 0.5, 0.5, 0.5]
+    assert values["alpha"].dtype == torch.float64
+
+
+def test_what_cannot_differ_within_a_population_is_refused():
+    with pytest.raises(ValueError, match="init cannot differ within one population"):
+        population_values([{"init": -20}, {"init": 0}], 2)
+    with pytest.raises(ValueError, match="must be a number"):
+        population_values([{"alpha": True}, {"alpha": 0.5}], 2)
+    with pytest.raises(ValueError, match="one per learner"):
+        MaxQLearner(taxi_hierarchy(), 3, alpha=torch.tensor([0.1, 0.2]))
+    with pytest.raises(ValueError, match="alpha must be one number"):
+        HPGRLLearner(taxi_hierarchy(), 2, PGConfig(alpha=torch.tensor([0.1, 0.2])))
+    spec = with_values(registry.get("taxi").algos["maxq-q"], {"exploration.epsilon.stop": 0.1})
+    with pytest.raises(ValueError, match="has no stop"):
+        spec.make_exploration(TrainConfig(steps=30))
+
+
+def sweep_args(*argv):
+    parser = argparse.ArgumentParser()
+    add_sweep_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["sweep", *argv])
+
+
+def test_the_command_line_writes_the_sweep_table_and_every_seed(tmp_path, capsys):
+    argv = ["taxi", "--algo", "smdp-q", "--population", "--seeds", "2", "--steps", "512"]
+    argv += ["--grid", "learner.alpha=0.1,0.5", "--grid", "exploration.epsilon.end=0.05"]
+    argv += ["--out", str(tmp_path), "--name", "g"]
+    assert run_population_command(sweep_args(*argv)) == 0
+    folder = tmp_path / "g"
+    assert "| rank | learner.alpha | exploration.epsilon.end |" in capsys.readouterr().out
+    assert json.loads((folder / "sweep.json").read_text())["population"] is True
+    with open(folder / "sweep.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["learner.alpha"] for r in rows) == ["0.1", "0.5"]
+    with open(folder / "per_seed.csv") as f:
+        per_seed = list(csv.DictReader(f))
+    assert [(r["learner.alpha"], r["seed"]) for r in per_seed] == [
+        ("0.1", "0"),
+        ("0.1", "1"),
+        ("0.5", "0"),
+        ("0.5", "1"),
+    ]
+    with pytest.raises(ValueError, match="exists"):
+        run_population_command(sweep_args(*argv))
+    with pytest.raises(ValueError, match="--resume is for Ray sweeps"):
+        run_population_command(sweep_args(*argv, "--resume"))
