@@ -8,7 +8,9 @@ the update rules keep their equations' form.
 Bit-for-bit equal to the number: a Python number is a double until it meets a float32 tensor,
 where it becomes ``float32(value)``. The per-learner values are therefore kept in float64, the
 schedules do their arithmetic on them as Python would on the number, and ``at_learners`` /
-``at_entries`` cast to the tables' dtype only where the number would meet them.
+``at_entries`` cast to the tables' dtype only where the number would meet them. Give float64
+tensors (as ``population_grid`` does): a float32 tensor holds ``float32(value)``, not the
+number, and the tables then differ in the last bits.
 """
 
 from __future__ import annotations
