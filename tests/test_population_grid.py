@@ -65,7 +65,9 @@ def trainer_with(seeds, alpha, end, learner_cls, graph_fn, envs):
     learner = learner_cls(graph, len(seeds), alpha=alpha, gamma=0.95)
     config = TrainConfig(steps=10**9, eval_every=0, eval_episodes=0, progress=False)
     exploration = EpsilonGreedy(Linear(1.0, end, 400 * envs))
-    return Trainer(TaxiEnv(seeds, envs), graph, learner, exploration, config, None, ExecutorConfig())
+    return Trainer(
+        TaxiEnv(seeds, envs), graph, learner, exploration, config, None, ExecutorConfig()
+    )
 
 
 @pytest.mark.parametrize("envs", [1, 4])  # 1: the plain update of distinct rows; 4: grouped
