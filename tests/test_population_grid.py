@@ -17,7 +17,7 @@ from envs.taxi import TaxiEnv
 from hrl_torch import registry
 from hrl_torch.cli_parser import add_sweep_parser
 from hrl_torch.executor import ExecutorConfig
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.exploration import Boltzmann, EpsilonGreedy, Linear
 from hrl_torch.learners import HPGRLLearner, MaxQLearner, QLambdaLearner, SMDPQLearner
 from hrl_torch.learners.pg import PGConfig
 from hrl_torch.population_grid import (
@@ -86,6 +86,36 @@ def test_a_tensor_of_equal_values_gives_the_numbers_tables(learner_cls, graph_fn
     for name, value in tables(numbers).items():
         assert torch.equal(value, tables(tensors)[name]), name
     assert any((t != 0).any() for t in tables(numbers).values())  # trained
+
+
+@pytest.mark.parametrize(
+    "choosers", [(), (3,)]
+)  # level by level [B, ...], all at once [B, Ic, ...]
+def test_per_learner_exploration_chooses_as_each_learner_s_numbers(choosers):
+    gen = torch.Generator().manual_seed(0)
+    b, a = 64, 5
+    q = torch.randn(b, *choosers, a, generator=gen) * 3
+    available = torch.rand(b, *choosers, a, generator=gen) > 0.3
+    available[..., 0] = True
+    u = torch.rand(b, *choosers, a + 1, generator=gen)
+    learner = torch.arange(b) % 4
+    ends, temps = [0.05, 0.137, 0.3, 0.9], [0.137, 0.5, 1.3, 2.0]
+    per = lambda xs: torch.tensor(xs, dtype=torch.float64)  # noqa: E731
+    cases = [
+        (
+            EpsilonGreedy(Linear(1.0, per(ends), 100)),
+            [EpsilonGreedy(Linear(1.0, e, 100)) for e in ends],
+        ),
+        (Boltzmann(per(temps)), [Boltzmann(t) for t in temps]),
+    ]
+    for together, alone in cases:
+        choice, greedy = together.select(q, available, u, 37, learner)
+        for p, own in enumerate(alone):
+            rows = learner == p
+            mine = own.select(q[rows], available[rows], u[rows], 37)
+            assert torch.equal(mine[0], choice[rows]) and torch.equal(mine[1], greedy[rows])
+    with pytest.raises(ValueError, match="needs the rows' learners"):
+        cases[0][0].select(q, available, u, 37)
 
 
 def test_population_values_are_configuration_major_and_shared_values_stay_numbers():
