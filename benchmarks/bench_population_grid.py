@@ -93,14 +93,16 @@ def main() -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--ray", action="store_true", help="also the Ray route (needs ray[tune])")
     p.add_argument("--out", default=None, help="write the numbers as JSON here")
+    p.add_argument("--alpha-only", action="store_true", help="skip the alpha x epsilon grid")
     args = p.parse_args()
     torch.set_num_threads(1)
     os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
     found = {"args": vars(args), "cpus": os.cpu_count(), "torch": torch.__version__}
-    found["alpha_x_epsilon"] = local(
-        args, {"learner.alpha": ALPHAS, "exploration.epsilon.end": ENDS}
-    )
-    print(json.dumps(found["alpha_x_epsilon"]), flush=True)
+    if not args.alpha_only:
+        found["alpha_x_epsilon"] = local(
+            args, {"learner.alpha": ALPHAS, "exploration.epsilon.end": ENDS}
+        )
+        print(json.dumps(found["alpha_x_epsilon"]), flush=True)
     found["alpha"] = local(args, {"learner.alpha": ALPHAS_8})
     print(json.dumps(found["alpha"]), flush=True)
     if args.ray:
