@@ -7,6 +7,7 @@ import math
 import torch
 
 from hrl_torch.exploration import Constant, Exponential, Linear, Schedule
+from hrl_torch.per_learner import refuse
 
 
 def schedule_values(value: float | Schedule) -> list[float]:
@@ -43,9 +44,11 @@ def check_range(owner: object, name: str, value, low: float, high: float, open_l
             )
 
 
-def check_step_size(owner: object, name: str, value) -> None:
-    """A TD step size: in ``(0, 1]``."""
+def check_step_size(owner: object, name: str, value, one_for_all: bool = False) -> None:
+    """A TD step size: in ``(0, 1]`` (``one_for_all``: not per learner)."""
     check_range(owner, name, value, 0.0, 1.0, open_low=True)
+    if one_for_all:
+        refuse(owner, name, value)
 
 
 def check_fraction(owner: object, name: str, value) -> None:
@@ -53,8 +56,10 @@ def check_fraction(owner: object, name: str, value) -> None:
     check_range(owner, name, value, 0.0, 1.0, open_low=False)
 
 
-def check_positive(owner: object, name: str, value) -> None:
-    """A gradient step size: finite and ``> 0``."""
+def check_positive(owner: object, name: str, value, one_for_all: bool = False) -> None:
+    """A gradient step size: finite and ``> 0`` (``one_for_all``: not per learner)."""
     for v in schedule_values(value):
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"{type(owner).__name__}: {name} must be > 0 and finite, got {v}")
+    if one_for_all:
+        refuse(owner, name, value)

@@ -49,7 +49,6 @@ from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.learners.base import Learner
 from hrl_torch.ops import lookup
-from hrl_torch.per_learner import refuse
 from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
 from hrl_torch.rng import LevelDraws
 from hrl_torch.tables import TableBank
@@ -141,8 +140,7 @@ class HPGRLLearner(Learner):
     ) -> None:
         super().__init__(graph, n_learners)
         self.config = cfg = config or PGConfig()
-        check_positive(self, "alpha", cfg.alpha)
-        refuse(self, "alpha", cfg.alpha)
+        check_positive(self, "alpha", cfg.alpha, one_for_all=True)
         check_fraction(self, "beta", cfg.beta)
         self.alpha = as_schedule(cfg.alpha)
         if nodes is None:
@@ -544,8 +542,7 @@ class ActorCriticLearner(HPGRLLearner):
         if not self.has_gauss:
             raise GraphError("ActorCriticLearner needs a root with one continuous child")
         self.actor = self.heads[graph.root_name]
-        check_step_size(self, "critic_alpha", critic_alpha)
-        refuse(self, "critic_alpha", critic_alpha)
+        check_step_size(self, "critic_alpha", critic_alpha, one_for_all=True)
         self.critic_alpha = as_schedule(critic_alpha)
         self.critics = nn.ModuleDict(
             {graph.root_name: TileValueHead(graph.root_name, critic_coder, n_learners)}
