@@ -5,10 +5,10 @@
 
 Configuration ``c`` and seed ``k`` (of ``S``) is learner ``c * S + k`` of one population
 (configuration-major). The settings that differ between configurations become per-learner
-tensors (``hrl_torch.per_learner``: the tabular learners' ``alpha`` and the exploration
-schedule's numbers); a seed's random streams depend on its seed alone (``hrl_torch.rng``), so
-every (configuration, seed) equals its own separate run, table for table. Settings every
-configuration shares (``steps``, ``init``, ...) are passed as they are.
+tensors (``hrl_torch.per_learner``: the tabular learners' ``alpha`` and ``init`` and the
+exploration schedule's numbers); a seed's random streams depend on its seed alone
+(``hrl_torch.rng``), so every (configuration, seed) equals its own separate run, table for
+table. Settings every configuration shares (``steps``, ``gamma``, ...) are passed as they are.
 
 The sweep folder ``{out}/{name}/`` holds ``sweep.json`` (the request, ``"population": true``),
 ``sweep.csv`` / ``sweep.md`` (the sweep's ranked table, one row per configuration; ``train s``
@@ -39,6 +39,8 @@ from hrl_torch.sweep import with_overrides, write_table
 PER_LEARNER_NAMES = (
     "alpha",
     "learner.alpha",
+    "init",
+    "learner.init",
     "exploration.epsilon",
     "exploration.epsilon.start",
     "exploration.epsilon.end",

@@ -18,7 +18,13 @@ from hrl_torch import registry
 from hrl_torch.cli_parser import add_sweep_parser
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.exploration import Boltzmann, EpsilonGreedy, Linear
-from hrl_torch.learners import HPGRLLearner, MaxQLearner, QLambdaLearner, SMDPQLearner
+from hrl_torch.learners import (
+    HPGRLLearner,
+    MaxQLearner,
+    QLambdaLearner,
+    RVIQLearner,
+    SMDPQLearner,
+)
 from hrl_torch.learners.pg import PGConfig
 from hrl_torch.population_grid import (
     population_values,
@@ -26,7 +32,7 @@ from hrl_torch.population_grid import (
     train_grid,
     with_values,
 )
-from hrl_torch.tables import TableBank
+from hrl_torch.tables import TableBank, TableSet
 from hrl_torch.trainer import TrainConfig, Trainer
 
 SEEDS = [0, 1, 2, 3, 4]
@@ -118,17 +124,44 @@ def test_per_learner_exploration_chooses_as_each_learner_s_numbers(choosers):
         cases[0][0].select(q, available, u, 37)
 
 
+def test_a_per_learner_init_fills_each_learner_s_tables_as_its_number():
+    n_states, n_cols = torch.tensor([3, 0, 2]), torch.tensor([2, 1, 4])
+    inits = [-20.0, 0.1, 7.3]
+    per = torch.tensor(inits, dtype=torch.float64)
+    bank = TableBank(3, n_states, n_cols, per, pad=4)
+    for p, init in enumerate(inits):
+        assert torch.equal(bank.data[p], TableBank(1, n_states, n_cols, init).data[0])
+    # a set of banks keeps each learner's own initial values
+    together = TableSet(C=TableBank(3, n_states, n_cols, per), V=TableBank(3, n_states, n_cols))
+    assert torch.equal(together.banks["C"].data, bank.data) and not together.banks["V"].data.any()
+    with pytest.raises(ValueError, match="one per learner"):
+        TableBank(2, n_states, n_cols, per)
+    number, tensor = (RVIQLearner(flat_graph(), 3, init=x) for x in (-2.5, torch.full((3,), -2.5)))
+    assert torch.equal(number.q_sum, tensor.q_sum) and torch.equal(number.Q.data, tensor.Q.data)
+
+
+def test_a_grid_over_init_as_one_population_equals_its_separate_runs():
+    taxi = registry.get("taxi")
+    fixed = {**FIXED, "steps": 600}
+    grid = [{**fixed, "learner.init": i, "learner.alpha": a} for i in (-20, 0) for a in (0.3, 0.5)]
+    together, _ = train_grid(taxi, "maxq-q", grid, SEEDS[:2])
+    for c, config in enumerate(grid):
+        alone, _ = train_grid(taxi, "maxq-q", [config], SEEDS[:2])
+        for name, value in tables(alone).items():
+            assert torch.equal(value, tables(together)[name][2 * c : 2 * c + 2]), (config, name)
+
+
 def test_population_values_are_configuration_major_and_shared_values_stay_numbers():
-    grid = [{"alpha": a, "init": -20} for a in (0.1, 0.5)]
+    grid = [{"alpha": a, "gamma": 0.9} for a in (0.1, 0.5)]
     values = population_values(grid, 3)
-    assert values["init"] == -20
+    assert values["gamma"] == 0.9
     assert values["alpha"].tolist() == [0.1, 0.1, 0.1, 0.5, 0.5, 0.5]
     assert values["alpha"].dtype == torch.float64
 
 
 def test_what_cannot_differ_within_a_population_is_refused():
-    with pytest.raises(ValueError, match="init cannot differ within one population"):
-        population_values([{"init": -20}, {"init": 0}], 2)
+    with pytest.raises(ValueError, match="gamma cannot differ within one population"):
+        population_values([{"gamma": 0.9}, {"gamma": 1.0}], 2)
     with pytest.raises(ValueError, match="must be a number"):
         population_values([{"alpha": True}, {"alpha": 0.5}], 2)
     with pytest.raises(ValueError, match="one per learner"):
