@@ -170,7 +170,8 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
         "--population",
         action="store_true",
         help="train the whole grid x seeds as one population in this process (no Ray; the "
-        "settings that differ must be per-learner ones: learner.alpha, exploration.epsilon.*)",
+        "settings that differ must be per-learner ones: learner.alpha, learner.init, "
+        "exploration.epsilon.*)",
     )
     p.add_argument(
         "--device", type=device, default="cpu", help="with --population: cpu (default), cuda, ..."
