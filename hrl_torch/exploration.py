@@ -14,7 +14,6 @@ a domain's monitor says so.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 
@@ -199,12 +198,10 @@ def has_per_learner_values(exploration) -> bool:
 
 
 def on_device(exploration, device: torch.device):
-    """``exploration`` with its per-learner values on ``device`` (a copy; itself if it has none)."""
-    if not has_per_learner_values(exploration):
-        return exploration
-    moved = copy.copy(exploration)
-    move_attributes(moved, lambda t: t.to(device))
-    return moved
+    """``exploration`` with its per-learner values moved to ``device`` (in place)."""
+    if has_per_learner_values(exploration):
+        move_attributes(exploration, lambda t: t.to(device))
+    return exploration
 
 
 def _at_rows(value, learner: torch.Tensor | None, like: torch.Tensor):

@@ -6,6 +6,7 @@ be per learner is refused, and ``hrl-torch sweep --population`` writes the sweep
 
 import argparse
 import csv
+import dataclasses
 import json
 
 import pytest
@@ -17,6 +18,7 @@ from envs.taxi import TaxiEnv
 from hrl_torch import registry
 from hrl_torch.cli_parser import add_sweep_parser
 from hrl_torch.executor import ExecutorConfig
+from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.exploration import Boltzmann, EpsilonGreedy, Linear
 from hrl_torch.learners import (
     HPGRLLearner,
@@ -32,8 +34,10 @@ from hrl_torch.population_grid import (
     train_grid,
     with_values,
 )
+from hrl_torch.sync_count import count_train_step
 from hrl_torch.tables import TableBank, TableSet
 from hrl_torch.trainer import TrainConfig, Trainer
+from tests.test_any_device import _tensors
 
 SEEDS = [0, 1, 2, 3, 4]
 #: shared by every configuration: a small budget (600 batched steps of 2 envs per seed)
@@ -171,6 +175,26 @@ def test_what_cannot_differ_within_a_population_is_refused():
     spec = with_values(registry.get("taxi").algos["maxq-q"], {"exploration.epsilon.stop": 0.1})
     with pytest.raises(ValueError, match="has no stop"):
         spec.make_exploration(TrainConfig(steps=30))
+
+
+def test_a_population_grid_builds_on_meta_and_a_step_reads_nothing_back():
+    taxi = registry.get("taxi")
+    grid = [
+        {"learner.alpha": a, "exploration.epsilon.end": e} for a, e in ((0.1, 0.01), (0.5, 0.3))
+    ]
+    spec = with_values(taxi.algos["maxq-q"], population_values(grid, 2))
+    domain = dataclasses.replace(taxi, algos={**taxi.algos, "maxq-q": spec})
+    for device in ("meta", "cpu"):
+        opts = RunOptions(seeds=range(4), envs_per_learner=2, eval_episodes=0, progress=False)
+        trainer = build_trainer(domain, "maxq-q", dataclasses.replace(opts, device=device))
+        if device == "meta":  # every tensor there, the per-learner values included
+            found: list = []
+            _tensors(trainer, "trainer", found, set())
+            assert [p for p, dev in found if dev.type != "meta"] == []
+            assert trainer.learner.alpha.value.device.type == "meta"
+            trainer.train_step()
+        else:
+            assert count_train_step(trainer, 70, stacks=True).total == 0
 
 
 def sweep_args(*argv):
