@@ -124,6 +124,9 @@ def _run(args: argparse.Namespace) -> int:
         from hrl_torch.population_grid import run_population_command
         from hrl_torch.sweep import run_sweep_command
 
+        if args.device != "cpu" and not args.population:
+            raise UserError("--device is for --population sweeps (Ray trials run on the CPU)")
+
         try:
             return (run_population_command if args.population else run_sweep_command)(args)
         except ValueError as err:

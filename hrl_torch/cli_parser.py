@@ -146,8 +146,8 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sweep",
         help="run a grid of hyperparameters as Ray Tune trials, one population run each",
-        epilog='Needs the sweep extra: pip install -e ".[sweep]". Grid names: TrainConfig '
-        "fields, envs_per_learner and the learner's constructor arguments.",
+        epilog='Needs the sweep extra (pip install -e ".[sweep]") unless --population. Grid '
+        "names: TrainConfig fields, envs_per_learner and the learner's constructor arguments.",
     )
     p.add_argument("domain", help="a name `hrl-torch list` shows")
     p.add_argument("--algo", required=True, help="one of the domain's algorithms")
