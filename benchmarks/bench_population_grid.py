@@ -10,10 +10,10 @@ Three routes train the same configurations, each with the same seeds and budget:
 
 Grids: ``alpha x epsilon`` (``learner.alpha`` x ``exploration.epsilon.end``, routes a and b;
 measured before the Ray route could set exploration values, and kept so) and ``alpha`` (as
-many ``learner.alpha`` values, all three routes). Wall seconds from the call to its return (building, training, the
-final evaluation; Ray: its start, the run folders and its shutdown too). CPU seconds of this
-process are printed beside (Ray's workers are other processes). The machines are shared:
-compare only ratios taken in one run.
+many ``learner.alpha`` values, all three routes). Wall seconds from the call to its return
+(building, training, the final evaluation; Ray: its start, the run folders and its shutdown
+too). CPU seconds of this process are printed beside (Ray's workers are other processes).
+The machines are shared: compare only ratios taken in one run.
 
     PYTHONPATH=$PWD python benchmarks/bench_population_grid.py [--ray] [--steps N] [--out F]
 """
