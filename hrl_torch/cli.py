@@ -121,10 +121,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "eval":
         return _evaluate(args)
     if args.command == "sweep":
+        from hrl_torch.population_grid import run_population_command
         from hrl_torch.sweep import run_sweep_command
 
+        if args.device != "cpu" and not args.population:
+            raise UserError("--device is for --population sweeps (Ray trials run on the CPU)")
+
         try:
-            return run_sweep_command(args)
+            return (run_population_command if args.population else run_sweep_command)(args)
         except ValueError as err:
             raise UserError.of(err) from err
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written

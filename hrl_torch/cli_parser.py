@@ -159,10 +159,10 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sweep",
         help="run a grid of hyperparameters as Ray Tune trials, one population run each",
-        epilog='Ray needs the sweep extra: pip install -e ".[sweep]" (or --in-process). Grid '
-        "names: TrainConfig fields, envs_per_learner, and the dotted fields of the learner, "
-        "exploration and PG setting (learner.alpha, exploration.epsilon.end, pg.alpha; an "
-        "unknown name is refused with the list).",
+        epilog='Ray needs the sweep extra: pip install -e ".[sweep]" (not with --in-process or '
+        "--population). Grid names: TrainConfig fields, envs_per_learner, and the dotted fields "
+        "of the learner, exploration and PG setting (learner.alpha, exploration.epsilon.end, "
+        "pg.alpha; an unknown name is refused with the list).",
     )
     p.add_argument("domain", help="a name `hrl-torch list` shows")
     p.add_argument("--algo", required=True, help="one of the domain's algorithms")
@@ -185,5 +185,15 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
         "--in-process",
         action="store_true",
         help="no Ray: run the trials one after another in this process",
+    )
+    p.add_argument(
+        "--population",
+        action="store_true",
+        help="train the whole grid x seeds as one population in this process (no Ray; the "
+        "settings that differ must be per-learner ones: learner.alpha, learner.init, "
+        "exploration.epsilon.*)",
+    )
+    p.add_argument(
+        "--device", type=device, default="cpu", help="with --population: cpu (default), cuda, ..."
     )
     return p

@@ -16,12 +16,22 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
 from types import FunctionType, MappingProxyType
 
-__all__ = ["Budget", "Make", "fields", "parse_settings", "parse_value", "replace", "split_name"]
+__all__ = [
+    "Budget",
+    "Make",
+    "fields",
+    "parse_settings",
+    "parse_value",
+    "replace",
+    "same",
+    "split_name",
+]
 
 
 @dataclass(frozen=True)
@@ -68,7 +78,7 @@ class Make:
     def __eq__(self, other) -> bool:
         if not isinstance(other, Make):
             return NotImplemented
-        return self.target is other.target and dict(self.kwargs) == dict(other.kwargs)
+        return self.target is other.target and same(dict(self.kwargs), dict(other.kwargs))
 
     __hash__ = None  # arguments may be unhashable (lists, tensors)
 
@@ -101,6 +111,31 @@ class Make:
     def with_argument(self, name: str, value) -> Make:
         """A copy with ``name=value``."""
         return Make(self.target, **{**self.kwargs, name: value})
+
+
+def same(a, b) -> bool:
+    """Whether two settings are equal, tensors included (one per learner: equal entries).
+
+    ``==`` on a tensor compares entry by entry, and a dict or list holding one then has no
+    truth value; here tensors are equal when their dtype, shape and entries are.
+    """
+    torch = sys.modules.get("torch")  # no tensor exists unless torch was imported
+    if torch is not None and isinstance(a, torch.Tensor):
+        return (
+            isinstance(b, torch.Tensor)
+            and (a.dtype, a.shape) == (b.dtype, b.shape)
+            and bool(torch.equal(a.cpu(), b.cpu()))
+        )
+    if torch is not None and isinstance(b, torch.Tensor):
+        return False
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return type(a) is type(b) and len(a) == len(b) and all(map(same, a, b))
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):  # a schedule holding a tensor
+        named = [f.name for f in dataclasses.fields(a)]
+        return type(a) is type(b) and all(same(vars(a)[n], vars(b)[n]) for n in named)
+    return bool(a == b)
 
 
 def _make(target, kwargs: dict) -> Make:

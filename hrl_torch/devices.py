@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import dataclasses as dc
 import types
 from collections.abc import Callable
 
@@ -14,9 +15,16 @@ import torch
 
 
 def apply_to_tensors(fn, value):
-    """``value`` with ``fn`` applied to every tensor in it (tensors, lists, tuples, dicts)."""
+    """``value`` with ``fn`` applied to every tensor in it (tensors, lists, tuples, dicts).
+
+    A frozen dataclass holding tensors (a schedule of per-learner values) is copied with its
+    fields moved.
+    """
     if isinstance(value, torch.Tensor):
         return fn(value)
+    if _frozen_dataclass(value):
+        fields = {f.name: apply_to_tensors(fn, vars(value)[f.name]) for f in dc.fields(value)}
+        return dc.replace(value, **fields)
     if isinstance(value, list):
         return [apply_to_tensors(fn, v) for v in value]
     if isinstance(value, tuple):
@@ -56,7 +64,16 @@ def holds_tensor(value, depth: int = 0) -> bool:
         return any(holds_tensor(v, depth + 1) for v in value)
     if depth < 3 and isinstance(value, dict):
         return any(holds_tensor(v, depth + 1) for v in value.values())
+    if depth < 3 and _frozen_dataclass(value):
+        return any(holds_tensor(v, depth + 1) for v in vars(value).values())
     return False
+
+
+def _frozen_dataclass(value) -> bool:
+    """Whether ``value`` is an instance of a frozen dataclass (a schedule, say)."""
+    return (
+        dc.is_dataclass(value) and not isinstance(value, type) and value.__dataclass_params__.frozen
+    )
 
 
 _NOT_HELPERS = (types.FunctionType, types.MethodType, type, torch.nn.Module)

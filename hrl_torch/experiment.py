@@ -18,6 +18,7 @@ import torch
 
 from hrl_torch import __version__, registry
 from hrl_torch.checkpoint import load_checkpoint
+from hrl_torch.config import same
 from hrl_torch.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.envcheck import check_env
 from hrl_torch.failures import RunFailed
@@ -219,7 +220,7 @@ def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
     """
     recorded = {"settings": {}} | {k: run[k] for k in ("domain", "algo", *RUN_KEYS) if k in run}
     for key, value in changes.items():
-        if key in recorded and key not in CONTINUE_KEYS and value != recorded[key]:
+        if key in recorded and key not in CONTINUE_KEYS and not same(value, recorded[key]):
             raise ValueError(
                 f"{key} {value!r} differs from the checkpoint's run ({key} {recorded[key]!r}); "
                 f"a resumed run keeps its settings (only {' and '.join(CONTINUE_KEYS)} may change)"

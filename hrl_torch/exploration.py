@@ -6,8 +6,10 @@ choice is greedy (the flag the average-reward learners use to update their gains
 non-random actions). Taking pre-drawn uniforms keeps the random stream of a row independent of
 how many other rows needed a decision.
 Schedules are functions of the learner's env-step count, so every learner of a population sees
-the same exploration rate at the same point of its own training; ``TriggeredEpsilon`` (Section
-5.3's hybrid) is a per-learner epsilon that starts decaying when a domain's monitor says so.
+the same exploration rate at the same point of its own training (a schedule's values may be
+per-learner tensors, ``hrl_torch.per_learner``: then each learner its own);
+``TriggeredEpsilon`` (Section 5.3's hybrid) is a per-learner epsilon that starts decaying when
+a domain's monitor says so.
 """
 
 from __future__ import annotations
@@ -19,13 +21,24 @@ import torch
 from torch import nn
 
 from hrl_torch.config import Budget, Make
+from hrl_torch.devices import move_attributes
 from hrl_torch.ops import argmax_last
+from hrl_torch.per_learner import at_learners, holds_per_learner, is_per_learner, per_learner
 
 _TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
 
 
+class _PerLearnerFields:
+    """A schedule whose numbers may be per-learner tensors ``[P]`` (kept as float64)."""
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if is_per_learner(value):
+                object.__setattr__(self, name, per_learner(value))
+
+
 @dataclass(frozen=True)
-class Constant:
+class Constant(_PerLearnerFields):
     """A fixed value."""
 
     value: float
@@ -36,7 +49,7 @@ class Constant:
 
 
 @dataclass(frozen=True)
-class Linear:
+class Linear(_PerLearnerFields):
     """Linear from ``start`` to ``end`` over ``steps`` env steps, then ``end``."""
 
     start: float
@@ -50,8 +63,11 @@ class Linear:
 
 
 @dataclass(frozen=True)
-class Exponential:
-    """``start * decay ** (step // every)``, never below ``minimum``."""
+class Exponential(_PerLearnerFields):
+    """``start * decay ** (step // every)``, never below ``minimum``.
+
+    With per-learner values, equal to the numbers' schedule up to rounding (torch's ``pow``).
+    """
 
     start: float
     decay: float
@@ -60,14 +76,19 @@ class Exponential:
 
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
-        return max(self.minimum, self.start * self.decay ** (step // max(self.every, 1)))
+        value = self.start * self.decay ** (step // max(self.every, 1))
+        if is_per_learner(value) or is_per_learner(self.minimum):
+            return torch.maximum(torch.as_tensor(self.minimum, dtype=torch.float64), value)
+        return max(self.minimum, value)
 
 
 Schedule = Constant | Linear | Exponential
 
 
-def as_schedule(value: float | Schedule) -> Schedule:
-    """Wrap a plain number as a constant schedule."""
+def as_schedule(value: float | torch.Tensor | Schedule) -> Schedule:
+    """Wrap a plain number (or a per-learner tensor ``[P]``) as a constant schedule."""
+    if is_per_learner(value):
+        return Constant(value)
     return Constant(float(value)) if isinstance(value, int | float) else value
 
 
@@ -93,13 +114,19 @@ class Greedy:
     """Always the best available child (random among exact ties).
 
     Like every strategy: ``q [..., A]``, ``available [..., A]``, uniforms ``u [..., A + 1]``
-    (any leading dimensions) give ``(choice [...], greedy [...])``.
+    (any leading dimensions) and the rows' learners ``[B]`` (optional: per-learner values
+    need them) give ``(choice [...], greedy [...])``.
     """
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
+        self,
+        q: torch.Tensor,
+        available: torch.Tensor,
+        u: torch.Tensor,
+        step: int,
+        learner: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return ``(choice, greedy)``."""
+        """Return ``(choice, greedy)`` (``learner [B]``: the rows' learners, unused here)."""
         choice = masked_argmax(q + u[..., : q.shape[-1]] * _TIE_NOISE, available)
         return choice, torch.ones_like(choice, dtype=torch.bool)
 
@@ -108,21 +135,27 @@ class EpsilonGreedy:
     """With probability ``epsilon(step)`` a uniformly random available child, else greedy.
 
     The random child is the available one with the largest of the row's per-child uniforms,
-    the same numbers that break the greedy choice's ties (only one of the two is used).
+    the same numbers that break the greedy choice's ties (only one of the two is used). A
+    per-learner epsilon needs the rows' learners (``select``'s ``learner [B]``).
     """
 
     def __init__(self, epsilon: float | Schedule) -> None:
         self.epsilon = as_schedule(epsilon)
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
+        self,
+        q: torch.Tensor,
+        available: torch.Tensor,
+        u: torch.Tensor,
+        step: int,
+        learner: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice, greedy)``; a random pick that equals the greedy one counts."""
         a = q.shape[-1]
         per_child, blocked = u[..., :a], ~available
         greedy_choice = argmax_last((q + per_child * _TIE_NOISE).masked_fill(blocked, -math.inf))
         random_choice = argmax_last(per_child.masked_fill(blocked, -1.0))
-        explore = u[..., a] < self.epsilon(step)
+        explore = u[..., a] < _at_rows(self.epsilon(step), learner, u[..., a])
         choice = torch.where(explore, random_choice, greedy_choice)
         return choice, choice == greedy_choice
 
@@ -134,10 +167,19 @@ class Boltzmann:
         self.temperature = as_schedule(temperature)
 
     def select(
-        self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
+        self,
+        q: torch.Tensor,
+        available: torch.Tensor,
+        u: torch.Tensor,
+        step: int,
+        learner: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice, greedy)`` sampled by inverse CDF."""
-        temp = max(self.temperature(step), 1e-8)
+        temperature = self.temperature(step)
+        if is_per_learner(temperature):
+            temp = _at_rows(temperature.clamp_min(1e-8), learner, q[..., 0])[..., None]
+        else:
+            temp = max(temperature, 1e-8)
         logits = (q / temp).masked_fill(~available, -math.inf)
         probs = torch.softmax(logits, dim=-1)
         pick = u[..., q.shape[-1], None]
@@ -148,6 +190,26 @@ class Boltzmann:
 
 
 Exploration = Greedy | EpsilonGreedy | Boltzmann
+
+
+def has_per_learner_values(exploration) -> bool:
+    """Whether ``exploration``'s schedule has a per-learner value (its choices read learners)."""
+    schedule = vars(exploration).get("epsilon", vars(exploration).get("temperature"))
+    return holds_per_learner(schedule)
+
+
+def on_device(exploration, device: torch.device):
+    """``exploration`` with its per-learner values moved to ``device`` (in place)."""
+    if has_per_learner_values(exploration):
+        move_attributes(exploration, lambda t: t.to(device))
+    return exploration
+
+
+def _at_rows(value, learner: torch.Tensor | None, like: torch.Tensor):
+    """A schedule's value at the rows (``at_learners``); per-learner values need ``learner``."""
+    if is_per_learner(value) and learner is None:
+        raise ValueError("a per-learner exploration value needs the rows' learners (learner=)")
+    return at_learners(value, learner, like)
 
 
 class TriggeredEpsilon(nn.Module):

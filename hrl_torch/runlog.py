@@ -20,6 +20,7 @@ import io
 import json
 import math
 import subprocess
+import sys
 import time
 import types
 import warnings
@@ -148,13 +149,14 @@ class RunLogger:
     def _record_hparams(self, hparams: dict, resumed_at: int | None) -> dict:
         """Write ``hparams.json``: the original's settings, plus every resume."""
         path = self.run_dir / "hparams.json"
+        hparams = json.loads(json.dumps(hparams, default=json_default))  # as written: comparable
         if resumed_at is not None and path.exists():
             original = json.loads(path.read_text())
             resume = {"at_step": resumed_at, "time": time.strftime("%Y-%m-%d %H:%M:%S")}
             resume.update({k: v for k, v in hparams.items() if original.get(k) != v})
             original.setdefault("resumes", []).append(resume)
             hparams = original
-        path.write_text(json.dumps(hparams, indent=2, default=str))
+        path.write_text(json.dumps(hparams, indent=2))
         return hparams
 
     def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
@@ -209,7 +211,7 @@ class RunLogger:
     def write_summary(self, summary: dict) -> Path:
         """Write ``summary.json``."""
         path = self.run_dir / "summary.json"
-        path.write_text(json.dumps(summary, indent=2, default=_json_default))
+        path.write_text(json.dumps(summary, indent=2, default=json_default))
         return path
 
 
@@ -285,9 +287,13 @@ def _step_of(row: list[str]) -> float:
         return math.inf
 
 
-def _json_default(x):
+def json_default(x):
+    """A NumPy number as a number, a tensor as its number or list of numbers, others as text."""
     if isinstance(x, np.generic):
         return x.item()
+    torch = sys.modules.get("torch")  # no tensor exists unless torch was imported
+    if torch is not None and isinstance(x, torch.Tensor):
+        return x.tolist()  # a per-learner value: one number per learner
     return str(x)
 
 

@@ -17,6 +17,7 @@ from torch import nn
 from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
 from hrl_torch.ops import group_of_rows, lookup
+from hrl_torch.per_learner import at_entries, check_size, is_per_learner
 
 
 class TableLayout(MovesTensorAttrs, nn.Module):
@@ -80,9 +81,11 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
     SCRATCH_LIMIT = 1 << 22
 
     def _init_store(self, n_learners: int, stride: int, fill: torch.Tensor, pad: int = 0) -> None:
+        """A store of ``fill``: one learner's block ``[stride]`` or each one's ``[P, stride]``."""
         self.n_learners, self.stride, self.pad = n_learners, stride, pad
         self.sentinel = n_learners * stride
-        store = torch.cat([fill.repeat(n_learners), torch.zeros(1 + pad)])
+        blocks = fill.expand(n_learners, stride).reshape(-1)
+        store = torch.cat([blocks, torch.zeros(1 + pad)])
         self.register_buffer("store", store)
         self._scratch = torch.zeros(2, 0)
 
@@ -99,8 +102,9 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         Every entry hit by ``n`` rows in this batch takes the ``n`` same-step updates at once,
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
         Shapes: ``flat_index``, ``target``, ``mask`` of one shape (each element a row);
-        ``alpha`` scalar or that shape. Returns each row's entry before the update (0 for
-        masked rows), in that shape.
+        ``alpha`` a number or a per-learner tensor ``[P]`` (``hrl_torch.per_learner``: an
+        entry of learner ``p`` moves with ``alpha[p]``). Returns each row's entry before the
+        update (0 for masked rows), in that shape.
 
         ``distinct``: the caller knows that no two unmasked rows hit one entry (each row of
         its batch belongs to another learner, and one row's entries differ), so ``n <= 1``
@@ -108,20 +112,21 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
+        rho = at_entries(1.0 - alpha, index, self.stride, flat.dtype)  # 1 - alpha of each row
         if distinct:
             old = torch.take(flat, index)
             mean = torch.nan_to_num(target)
-            new = mean + (1.0 - alpha) * (old - mean)  # (the n = 1 case below, op for op)
+            new = mean + rho * (old - mean)  # (the n = 1 case below, op for op)
             flat.put_(index, torch.where(mask, new, old))  # (``put_``: flat, cheaper)
             return old
         shape = index.shape
         index, target, mask = index.reshape(-1), target.reshape(-1), mask.reshape(-1)
-        if isinstance(alpha, torch.Tensor) and alpha.dim():
-            alpha = alpha.reshape(-1)
+        if isinstance(rho, torch.Tensor):
+            rho = rho.reshape(-1)
         weight = mask.to(flat.dtype)
         weighted = torch.stack([weight, torch.nan_to_num(target)]) * weight
         n, total = self._count_and_sum(index, weighted)
-        keep = (1.0 - alpha) ** n  # rho = (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
+        keep = rho**n  # (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)
         mean = total / n.clamp_min(1.0)
         old = flat.index_select(0, index)
         flat.put_(index, mean + keep * (old - mean))
@@ -172,7 +177,7 @@ class TableBank(_FlatStore):
         n_learners: population size ``P``.
         n_states: abstract states per table node ``[T]`` (0 for nodes without this table).
         n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
-        init: initial value of every entry.
+        init: initial value of every entry (a number, or one per learner: a tensor ``[P]``).
         pad: zeros after the sentinel (``_FlatStore``).
     """
 
@@ -181,20 +186,22 @@ class TableBank(_FlatStore):
         n_learners: int,
         n_states: torch.Tensor,
         n_cols: torch.Tensor,
-        init: float = 0.0,
+        init: float | torch.Tensor = 0.0,
         pad: int = 0,
     ) -> None:
         super().__init__()
         sizes = n_states.long() * n_cols.long()
         offset = torch.cumsum(sizes, 0) - sizes
         self.total = max(int(sizes.sum()), 1)
-        self.init = float(init)
+        check_size(self, "init", init, n_learners)
+        self.init = init if is_per_learner(init) else float(init)
         self.register_buffer("offset", offset, persistent=False)
         self.register_buffer("n_cols", n_cols.long(), persistent=False)
         self._blocks = list(zip(offset.tolist(), n_states.tolist(), n_cols.tolist(), strict=True))
         self._set: TableSet | None = None
         self.base = 0
-        self._init_store(n_learners, self.total, torch.full((self.total,), self.init), pad)
+        fill = self.init.float()[:, None] if is_per_learner(self.init) else self.init
+        self._init_store(n_learners, self.total, torch.zeros(self.total) + fill, pad)
 
     def _join(self, tables: TableSet, base: int) -> None:
         """Keep this bank's entries in ``tables``' store, from ``base`` in each learner block."""
@@ -282,9 +289,9 @@ class TableSet(_FlatStore):
     def __init__(self, **banks: TableBank) -> None:
         super().__init__()
         first = next(iter(banks.values()))
-        fills = [bank.store[: bank.total] for bank in banks.values()]  # one learner's block
+        fills = [bank.data for bank in banks.values()]  # every learner's block
         stride, pad = sum(b.total for b in banks.values()), max(b.pad for b in banks.values())
-        self._init_store(first.n_learners, stride, torch.cat(fills), pad)
+        self._init_store(first.n_learners, stride, torch.cat(fills, 1), pad)
         self.banks = nn.ModuleDict(banks)
         start = 0
         for bank in banks.values():

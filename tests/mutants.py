@@ -327,8 +327,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tables-same-step-once",
         "hrl_torch/tables.py",
-        "keep = (1.0 - alpha) ** n",
-        "keep = (1.0 - alpha) * (n > 0) + (n == 0)",
+        "keep = rho**n",
+        "keep = rho * (n > 0) + (n == 0)",
         "several same-step updates of one entry count as one",
         (TABLES,),
     ),
@@ -351,8 +351,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "epsilon-inverted",
         "hrl_torch/exploration.py",
-        "explore = u[..., a] < self.epsilon(step)",
-        "explore = u[..., a] >= self.epsilon(step)",
+        "explore = u[..., a] < _at_rows(self.epsilon(step), learner, u[..., a])",
+        "explore = u[..., a] >= _at_rows(self.epsilon(step), learner, u[..., a])",
         "epsilon-greedy explores with probability 1 - epsilon",
         ("tests/test_exploration.py",),
     ),
@@ -924,8 +924,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tables-plain-update-wrong-step",
         "hrl_torch/tables.py",
-        "new = mean + (1.0 - alpha) * (old - mean)  # (the n = 1 case below, op for op)",
-        "new = mean + alpha * (old - mean)  # (the n = 1 case below, op for op)",
+        "new = mean + rho * (old - mean)  # (the n = 1 case below, op for op)",
+        "new = mean + (1.0 - rho) * (old - mean)  # (the n = 1 case below, op for op)",
         "the plain update (rows of different learners) moves by 1 - alpha instead of alpha",
         (MAXQ_EXACT, MULTISTEP),
     ),

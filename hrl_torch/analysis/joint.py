@@ -30,7 +30,7 @@ from hrl_torch.stack import TaskStack
 class FirstGreedy:
     """The best available child, ties to the first: a deterministic greedy policy."""
 
-    def select(self, q, available, u, step):
+    def select(self, q, available, u, step, learner=None):
         """``(choice [B], greedy [B])``."""
         choice = masked_argmax(q, available)
         return choice, torch.ones_like(choice, dtype=torch.bool)

@@ -21,10 +21,18 @@ from torch import nn
 from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
-from hrl_torch.exploration import Exploration, Schedule, as_schedule, uniforms_needed
+from hrl_torch.exploration import (
+    Exploration,
+    Schedule,
+    as_schedule,
+    has_per_learner_values,
+    on_device,
+    uniforms_needed,
+)
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
 from hrl_torch.ops import add_at, at_rows, lookup
+from hrl_torch.per_learner import check_size
 from hrl_torch.rng import BatchRNG, LevelDraws
 from hrl_torch.tables import TableBank, TableLayout, TableSet
 from hrl_torch.validate import check_fraction, check_step_size
@@ -174,6 +182,7 @@ class TabularLearner(Learner):
     ) -> None:
         super().__init__(graph, n_learners)
         check_step_size(self, "alpha", alpha)
+        check_size(self, "alpha", alpha, n_learners)  # a per-learner alpha: one per learner
         check_fraction(self, "gamma", gamma)
         self.alpha = as_schedule(alpha)
         self.gamma = float(gamma)
@@ -347,11 +356,12 @@ class ValuePolicy:
     ALL_AT_ONCE_LIMIT = 1 << 16
 
     def __init__(self, learner: Learner, exploration: Exploration, rng: BatchRNG) -> None:
+        g = learner.graph
         self.learner = learner
-        self.exploration = exploration
+        self.exploration = on_device(exploration, g.chooser_depth.device)
         self.rng = rng
         self.choice_cost: torch.Tensor | None = None
-        g = learner.graph
+        self.per_learner = has_per_learner_values(exploration)  # choices read rows' learners
         self.width = uniforms_needed(g.max_children)
         self.all_at_once = learner.all_instances_at_once
         self.draws = LevelDraws(rng, g, self.width)
@@ -371,7 +381,8 @@ class ValuePolicy:
         q = self.learner.action_values(inst, ctx)
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
-        return Choice(*self.exploration.select(q, available, self.draws.level(push), step))
+        u = self.draws.level(push)
+        return Choice(*self.exploration.select(q, available, u, step, ctx.learner))
 
     def select_rows(self, inst, ctx: StepContext, available, step: int, push: int, rows):
         """``select`` for the batch rows ``rows [R]`` only (``inst``, ``available`` theirs).
@@ -382,7 +393,8 @@ class ValuePolicy:
         if self.choice_cost is not None:
             q = q - self.choice_cost[self.learner.graph.inst_node[inst]]
         u = self.draws.level_rows(push, rows)
-        return Choice(*self.exploration.select(q, available, u, step))
+        learner = ctx.learner.index_select(0, rows) if self.per_learner else None
+        return Choice(*self.exploration.select(q, available, u, step, learner))
 
     def choose_all(self, ctx: StepContext, step: int) -> Choice | None:
         """The choices ``[B, Ic]`` of every choosing instance (``graph.choosers``).
@@ -402,4 +414,4 @@ class ValuePolicy:
             q = q - self.choice_cost.index_select(0, g.chooser_node)
         available = ctx.available.index_select(1, g.chooser_node)
         u = self.draws.columns(self._chooser_columns)
-        return Choice(*self.exploration.select(q, available, u, step))
+        return Choice(*self.exploration.select(q, available, u, step, ctx.learner))

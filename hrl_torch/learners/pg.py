@@ -140,7 +140,7 @@ class HPGRLLearner(Learner):
     ) -> None:
         super().__init__(graph, n_learners)
         self.config = cfg = config or PGConfig()
-        check_positive(self, "alpha", cfg.alpha)
+        check_positive(self, "alpha", cfg.alpha, one_for_all=True)
         check_fraction(self, "beta", cfg.beta)
         self.alpha = as_schedule(cfg.alpha)
         if nodes is None:
@@ -542,7 +542,7 @@ class ActorCriticLearner(HPGRLLearner):
         if not self.has_gauss:
             raise GraphError("ActorCriticLearner needs a root with one continuous child")
         self.actor = self.heads[graph.root_name]
-        check_step_size(self, "critic_alpha", critic_alpha)
+        check_step_size(self, "critic_alpha", critic_alpha, one_for_all=True)
         self.critic_alpha = as_schedule(critic_alpha)
         self.critics = nn.ModuleDict(
             {graph.root_name: TileValueHead(graph.root_name, critic_coder, n_learners)}

@@ -39,6 +39,7 @@ from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
 from hrl_torch.ops import lookup
+from hrl_torch.per_learner import at_entries
 from hrl_torch.tables import TableBank
 from hrl_torch.validate import check_fraction
 
@@ -191,6 +192,7 @@ class QLambdaLearner(TabularLearner):
         self._num.index_add_(0, index, num.reshape(-1))
         self._den.index_add_(0, index, den.reshape(-1))
         step = lookup(self._num, index) / lookup(self._den, index).clamp_min(1.0)
+        alpha = at_entries(alpha, index, self.Q.total, flat.dtype)  # (per learner: its own)
         flat.index_put_((index,), lookup(flat, index) + alpha * step)
         self._num.index_fill_(0, index, 0.0)
         self._den.index_fill_(0, index, 0.0)

@@ -69,9 +69,8 @@ class RVIQLearner(TabularLearner):
         self.Q = self.completion_bank(init)
         self.attach_heads(Q=self.Q)
         self.n_entries = self.Q.total
-        self.register_buffer(
-            "q_sum", torch.full((n_learners,), float(init) * self.n_entries, dtype=torch.float64)
-        )
+        q_sum = torch.as_tensor(init, dtype=torch.float64) * self.n_entries  # (or per learner)
+        self.register_buffer("q_sum", q_sum.expand(n_learners).clone())
 
     @property
     def gain(self) -> torch.Tensor:
