@@ -77,6 +77,7 @@ from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.tables import RowSteps
 from hrl_torch.trainer import TrainConfig
 
 MOVE_NAMES = ["North", "South", "East", "West"]
@@ -237,7 +238,7 @@ def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearne
         ones = torch.ones(index.numel(), dtype=counts.dtype, device=counts.device)
         counts.index_put_((index.reshape(-1),), ones, accumulate=True)
         step = (1.0 / torch.take(counts, index).clamp_min(1.0)).clamp(low, high)
-        return plain(flat_index, target, step, mask, distinct)
+        return plain(flat_index, target, RowSteps(step), mask, distinct)
 
     tables.update = update
     return learner

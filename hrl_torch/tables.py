@@ -11,6 +11,8 @@ hierarchically optimal ones.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import nn
 
@@ -18,6 +20,13 @@ from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
 from hrl_torch.ops import group_of_rows, lookup
 from hrl_torch.per_learner import at_entries, check_size, is_per_learner
+
+
+@dataclass(frozen=True)
+class RowSteps:
+    """A step size per row of an update (shaped like its ``flat_index``), e.g. ``1 / visits``."""
+
+    alpha: torch.Tensor
 
 
 class TableLayout(MovesTensorAttrs, nn.Module):
@@ -93,7 +102,7 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         self,
         flat_index: torch.Tensor,
         target: torch.Tensor,
-        alpha: torch.Tensor | float,
+        alpha: torch.Tensor | float | RowSteps,
         mask: torch.Tensor,
         distinct: bool = False,
     ) -> torch.Tensor:
@@ -103,7 +112,8 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         order-free (exact when the targets agree). Rows with ``mask`` False change nothing.
         Shapes: ``flat_index``, ``target``, ``mask`` of one shape (each element a row);
         ``alpha`` a number or a per-learner tensor ``[P]`` (``hrl_torch.per_learner``: an
-        entry of learner ``p`` moves with ``alpha[p]``). Returns each row's entry before the
+        entry of learner ``p`` moves with ``alpha[p]``), or ``RowSteps`` (row ``i`` moves with
+        its own ``alpha.alpha[i]``). Returns each row's entry before the
         update (0 for masked rows), in that shape.
 
         ``distinct``: the caller knows that no two unmasked rows hit one entry (each row of
@@ -112,7 +122,10 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
-        rho = at_entries(1.0 - alpha, index, self.stride, flat.dtype)  # 1 - alpha of each row
+        if isinstance(alpha, RowSteps):
+            rho = 1.0 - alpha.alpha
+        else:
+            rho = at_entries(1.0 - alpha, index, self.stride, flat.dtype)  # 1 - alpha of each row
         if distinct:
             old = torch.take(flat, index)
             mean = torch.nan_to_num(target)
