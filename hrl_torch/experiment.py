@@ -59,6 +59,8 @@ class RunOptions:
             env of the domain (two rows, 32 random steps; the training env is not touched).
         check_leaf_rewards: warn while training when one abstract state of a primitive sees
             different rewards (``TrainConfig.check_leaf_rewards``).
+        cuda_graph: replay the training step as a CUDA graph on a CUDA device
+            (``TrainConfig.cuda_graph``; ``--no-cuda-graph`` turns it off).
     """
 
     seeds: Sequence[int] = (0,)
@@ -78,6 +80,7 @@ class RunOptions:
     schedule_steps: int | None = None
     check_env: bool = True
     check_leaf_rewards: bool = False
+    cuda_graph: bool = True
 
     def __post_init__(self) -> None:
         self.seeds = check_seeds(self.seeds)
@@ -192,7 +195,7 @@ def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
         for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
         if given[k] is not None
     }
-    config = replace(spec.train, progress=opts.progress, **changes)
+    config = replace(spec.train, progress=opts.progress, cuda_graph=opts.cuda_graph, **changes)
     if opts.check_leaf_rewards:
         config.check_leaf_rewards = True
     return config

@@ -44,6 +44,9 @@ class Linear:
 
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
+        if isinstance(step, torch.Tensor):  # (a device clock: the same float64 arithmetic)
+            frac = (step.double() / max(self.steps, 1)).clamp(0.0, 1.0)
+            return torch.where(frac == 1.0, self.end, self.start + frac * (self.end - self.start))
         frac = min(max(step / max(self.steps, 1), 0.0), 1.0)
         return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)
 
@@ -59,6 +62,9 @@ class Exponential:
 
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
+        if isinstance(step, torch.Tensor):  # (a device clock)
+            power = (step // max(self.every, 1)).double()
+            return (self.start * torch.pow(self.decay, power)).clamp_min(self.minimum)
         return max(self.minimum, self.start * self.decay ** (step // max(self.every, 1)))
 
 
@@ -136,7 +142,8 @@ class Boltzmann:
         self, q: torch.Tensor, available: torch.Tensor, u: torch.Tensor, step: int
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(choice, greedy)`` sampled by inverse CDF."""
-        temp = max(self.temperature(step), 1e-8)
+        temp = self.temperature(step)
+        temp = temp.clamp_min(1e-8) if isinstance(temp, torch.Tensor) else max(temp, 1e-8)
         logits = (q / temp).masked_fill(~available, -math.inf)
         probs = torch.softmax(logits, dim=-1)
         pick = u[..., q.shape[-1], None]

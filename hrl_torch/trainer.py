@@ -85,7 +85,7 @@ class Trainer:
         self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()
         self.source = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
-        self.deferred = defer_checks(env, self.agent.executor)  # (docs/bad-input.md)
+        self.deferred = defer_checks(env, self.agent.executor, self.learner)  # (docs/bad-input.md)
         skip = self.executor_config.on_bad_step == "skip"
         self.episodes = EpisodeTracker(
             env.batch_size, self.P, self.E, self.config.success_key, env.device, skip
@@ -135,8 +135,33 @@ class Trainer:
         """The training policy."""
         return self.agent.policy
 
+    #: how a step is replayed (``hrl_torch.cuda_graph``): ``None`` (CUDA graphs on a CUDA
+    #: device with ``config.cuda_graph``) or ``"trace"`` (recorded ops, any device: tests)
+    graph_backend: str | None = None
+
     def train_step(self) -> None:
-        """One batched step: every row takes one primitive action, the learner updates."""
+        """One batched step: every row takes one primitive action, the learner updates.
+
+        On a CUDA device (``TrainConfig.cuda_graph``) a captured CUDA graph after a warm-up.
+        """
+        graph = self.__dict__.get("_graph")
+        if graph is None:
+            graph = self.__dict__["_graph"] = self._step_graph()
+        graph()
+
+    def _step_graph(self):
+        """``StepGraph`` of the eager step where it replays, else the eager step itself."""
+        backend = self.graph_backend
+        if backend is None and self.config.cuda_graph and self.env.device.type == "cuda":
+            backend = "cuda"
+        if backend is None or self.collector or not self.agent.learn:
+            return self._eager_step
+        from hrl_torch.cuda_graph import StepGraph
+
+        return StepGraph(self._eager_step, self, backend=backend)
+
+    def _eager_step(self) -> None:
+        """The step itself (``train_step``)."""
         td, batch = self.source.step(self.env)
         if self.agent.learn:
             self.agent.update(batch)
