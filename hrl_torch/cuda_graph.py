@@ -4,8 +4,10 @@ A CUDA graph replays the kernels of one captured step with the scalars and addre
 step: it is the eager step only if the step reads nothing back to the host, keeps its state
 where the next step reads it, and does the same ops every step. ``StepGraph`` makes a step so:
 
-* the random streams draw from a counter on the device (``BatchRNG.count_on_device``) and the
-  executor checks its subtask guard every step (``static_guard``), so no step differs;
+* the random streams draw from a counter on the device (``BatchRNG.count_on_device``), the
+  schedules read a device clock (``HierarchicalAgent.count_on_device``), the executor checks
+  its subtask guard every step (``static_guard``) and the learners mask rows instead of
+  compacting them (``static_rows``), so no step differs;
 * state the step replaces (``self.x = torch.where(...)``: the project's functional style) is
   copied back into the tensors the step read, inside the graph, and the attributes are pointed
   at those again (``_copy_back``);
@@ -30,6 +32,7 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.executor import HierarchicalExecutor
+from hrl_torch.learners.base import Learner
 from hrl_torch.rng import BatchRNG
 from hrl_torch.sync_count import DATA_DEPENDENT, HostSyncCounter
 
@@ -190,6 +193,10 @@ class StepGraph:
             agent.count_on_device()
         for executor in _reachable(root, HierarchicalExecutor):
             executor.static_guard = True
+        for learner in _reachable(root, Learner):  # (masks, not row compaction, on the CPU too)
+            for module in learner.modules():
+                if isinstance(module, Learner):
+                    module.static_rows = True
 
     def _eager(self) -> None:
         self.step_fn()

@@ -89,8 +89,10 @@ def test_a_training_step_runs_on_meta(domain, algo):
 @pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
 def test_a_training_step_reads_nothing_back(domain, algo, monkeypatch):
     import hrl_torch.broadcast
+    import hrl_torch.devices
 
     monkeypatch.setattr(hrl_torch.broadcast, "STATIC_ROUNDS", True)  # as off the CPU
+    monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", True)  # (masks, as off the CPU)
     trainer = build_trainer(registry.get(domain), algo, _options())
     # from the first step on, past a block of random draws (BatchRNG.AHEAD = 64)
     counter = count_train_step(trainer, 70, stacks=True)
@@ -166,3 +168,23 @@ def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_m
     err = check.error()
     assert isinstance(err, ValueError)
     assert str(err) == "action 7 of agent 1 outside the action space [0, 7) (env row 1)"
+
+
+@pytest.mark.parametrize(
+    ("domain", "algo"),
+    [("ship-steering", "hybrid"), ("ship-steering", "flat-pg"), ("taxi-fuel", "hpgrl")],
+)
+def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeypatch):
+    import hrl_torch.devices
+
+    tables = []
+    for static in (False, True):  # (the CPU's row compaction; the masks used off the CPU)
+        monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", static)
+        opts = _options()
+        opts.envs_per_learner = 3
+        trainer = build_trainer(registry.get(domain), algo, opts)
+        for _ in range(150):
+            trainer.train_step()
+        tables.append({k: v.clone() for k, v in trainer.learner.state_dict().items()})
+    a, b = tables
+    assert [k for k in a if torch.is_tensor(a[k]) and not torch.equal(a[k], b[k])] == []

@@ -272,8 +272,14 @@ class HPGRLLearner(Learner):
         return {k: v.clone() for k, v in self._rows.items()}
 
     def set_extra_state(self, state: dict) -> None:
-        """Restore ``get_extra_state``."""
+        """Restore ``get_extra_state``.
+
+        Ring indices are clamped into ``theta`` as ``update`` keeps them (an older checkpoint
+        may hold others in unused entries).
+        """
         self._rows = {k: v.clone() for k, v in state.items()}
+        if "index" in self._rows:
+            self._rows["index"].clamp_(0, self.sentinel)
 
     # ------------------------------------------------------------------ acting
     def select(
@@ -415,10 +421,10 @@ class HPGRLLearner(Learner):
         slot = self._pair_base(b, valid.device) + torch.where(valid, count, k).clamp_max(k)
         slot = slot.view(-1)
         for key, src in (("index", "score_index"), ("value", "score_value")):
-            ring = rows[key]
-            ring.view(-1, ring.shape[-1]).index_copy_(
-                0, slot, level[src].index_select(1, depths).flatten(0, 1)
-            )
+            ring, new = rows[key], level[src].index_select(1, depths).flatten(0, 1)
+            if key == "index":  # (every ring entry stays an index into theta)
+                new = new.clamp(0, self.sentinel)
+            ring.view(-1, ring.shape[-1]).index_copy_(0, slot, new)
         rows["reward"].view(-1).index_copy_(0, slot, r.reshape(-1))
         rows["count"] = count = (count + valid).clamp_max(k)  # (past k: an overflow, raised)
         ended = invocation_ended(batch, depths) & (count > 0)
