@@ -183,6 +183,7 @@ class StepGraph:
         self.steps = 0  # steps taken (eager and replayed)
         self.graph = None  # the captured graph (cuda) or op list (trace)
         self.failed: str | None = None
+        self._inside = False
         self.delta: dict = {}  # path -> how much the step moves that Python integer
         self._deltas: list[dict] = []
         self._int_slots: list = []
@@ -203,8 +204,21 @@ class StepGraph:
         for rng in self._rngs:
             rng.sync_counter()
 
-    def __call__(self) -> None:
-        """One training step: eager in the warm-up (or after a refused capture), else replayed."""
+    def __call__(self) -> bool:
+        """One training step: eager in the warm-up (or after a refused capture), else replayed.
+
+        True; False when called from inside its own step (the caller then steps eagerly).
+        """
+        if self._inside:
+            return False
+        self._inside = True
+        try:
+            self._one_step()
+        finally:
+            self._inside = False
+        return True
+
+    def _one_step(self) -> None:
         if self.graph is not None:
             self._replay()
         elif self.failed is not None:
@@ -288,3 +302,19 @@ def _reachable(root, kind: type):
         if isinstance(obj, kind):
             yield obj
         stack.extend(v for _, _, v in _children(obj) if not isinstance(v, torch.Tensor))
+
+
+def step_for(trainer) -> Callable[[], bool]:
+    """What ``Trainer.train_step`` asks first: a ``StepGraph`` of it where it replays.
+
+    Replayed on a CUDA device with ``TrainConfig.cuda_graph`` (``backend="cuda"``), or with
+    a ``graph_backend`` attribute on the trainer (``"trace"``: any device, the CPU tests);
+    never with the collector or for an agent that does not learn. Else a function that returns
+    False (the trainer steps eagerly).
+    """
+    backend = getattr(trainer, "graph_backend", None)
+    if backend is None and trainer.config.cuda_graph and trainer.env.device.type == "cuda":
+        backend = "cuda"
+    if backend is None or trainer.collector or not trainer.agent.learn:
+        return lambda: False
+    return StepGraph(trainer.train_step, trainer, backend=backend)

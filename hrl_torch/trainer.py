@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from hrl_torch.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.checkpoint import Checkpointer
+from hrl_torch.cuda_graph import step_for
 from hrl_torch.deferred import defer_checks, raise_pending
 from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
 from hrl_torch.executor import ExecutorConfig
@@ -135,33 +136,11 @@ class Trainer:
         """The training policy."""
         return self.agent.policy
 
-    #: how a step is replayed (``hrl_torch.cuda_graph``): ``None`` (CUDA graphs on a CUDA
-    #: device with ``config.cuda_graph``) or ``"trace"`` (recorded ops, any device: tests)
-    graph_backend: str | None = None
-
     def train_step(self) -> None:
-        """One batched step: every row takes one primitive action, the learner updates.
-
-        On a CUDA device (``TrainConfig.cuda_graph``) a captured CUDA graph after a warm-up.
-        """
-        graph = self.__dict__.get("_graph")
-        if graph is None:
-            graph = self.__dict__["_graph"] = self._step_graph()
-        graph()
-
-    def _step_graph(self):
-        """``StepGraph`` of the eager step where it replays, else the eager step itself."""
-        backend = self.graph_backend
-        if backend is None and self.config.cuda_graph and self.env.device.type == "cuda":
-            backend = "cuda"
-        if backend is None or self.collector or not self.agent.learn:
-            return self._eager_step
-        from hrl_torch.cuda_graph import StepGraph
-
-        return StepGraph(self._eager_step, self, backend=backend)
-
-    def _eager_step(self) -> None:
-        """The step itself (``train_step``)."""
+        """One batched step of every row and the learner (CUDA: a graph, ``cuda_graph``)."""
+        replay = self.__dict__.get("_graph") or self.__dict__.setdefault("_graph", step_for(self))
+        if replay():  # (it ran the step; inside, it calls this again for the eager step)
+            return
         td, batch = self.source.step(self.env)
         if self.agent.learn:
             self.agent.update(batch)
@@ -366,3 +345,5 @@ class LoopCounters:
         self.train_seconds = float(state["train_seconds"])
         self.real_steps = state["real_steps"].clone()
         self.next = {k: int(v) for k, v in state["next"].items()}
+
+
