@@ -188,3 +188,27 @@ def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeyp
         tables.append({k: v.clone() for k, v in trainer.learner.state_dict().items()})
     a, b = tables
     assert [k for k in a if torch.is_tensor(a[k]) and not torch.equal(a[k], b[k])] == []
+
+
+def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
+    trainer = build_trainer(registry.get("ship-steering"), "flat-pg", _options())
+    step = trainer.env.step
+
+    def bad_rate_in_row_1(action):
+        return step(action.index_fill(0, torch.tensor([1]), 99.0))
+
+    trainer.env.step = bad_rate_in_row_1
+    message = r"turning rate 99.0 outside \[-15.0, 15.0\] deg/s \(env row 1\)"
+    with pytest.raises(ValueError, match=message):
+        trainer.train(steps=4)
+
+
+def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
+    opts = _options()
+    trainer = build_trainer(registry.get("taxi-fuel"), "hpgrl", opts)
+    trainer.learner.config.trace_len = 2  # (rings of 3 entries: the first longer invocation)
+    trainer.learner._rows.clear()
+    for _ in range(12):
+        trainer.train_step()  # (deferred: no raise inside the step)
+    with pytest.raises(RuntimeError, match=r"selected more than trace_len=2 children"):
+        raise_pending(trainer.deferred)
