@@ -146,7 +146,10 @@ class HybridPolicy:
         node = lrn.graph.inst_node[inst]
         pg_row = lrn.pg.node_group[node] >= 0
         out = lrn.pg.select(inst, ctx, available, u[:, a + 1 :], self.greedy, rows=rows)
-        # the value nodes' choices for every row (no read of which rows are PG's)
+        # the value nodes' choices for every row (static shapes: no read of which rows are
+        # PG's); on the CPU they are skipped when every row is (a read that syncs nothing)
+        if not lrn.pg.static(pg_row.device) and bool(pg_row.all()):
+            return out
         q = lrn.value.action_values(inst, ctx, rows)
         best, _ = Greedy().select(q, available, u, step)
         if self.greedy:
