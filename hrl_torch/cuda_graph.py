@@ -124,6 +124,20 @@ def _copy_back(before: dict, after: dict) -> None:
         container[key] = old
 
 
+#: ops that make a tensor from host data (``torch.tensor(list)``, ``as_tensor(int)``): on a GPU
+#: a copy from pageable host memory, which a capture refuses (and a replay would repeat stale)
+_FROM_HOST = (torch.ops.aten.lift_fresh.default, torch.ops.aten.lift_fresh_copy.default)
+
+
+class _ReplayCheck(HostSyncCounter):
+    """``HostSyncCounter`` that also counts tensors made from host data (``"from_host"``)."""
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if func in _FROM_HOST:
+            self._count("from_host")
+        return super().__torch_dispatch__(func, types, args, kwargs)
+
+
 class _Trace(TorchDispatchMode):
     """Records the aten ops of a step (``backend="trace"``); a host read is refused."""
 
@@ -133,8 +147,8 @@ class _Trace(TorchDispatchMode):
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
-        if DATA_DEPENDENT.get(func) is not None:
-            raise NotReplayable(f"the step reads the device back ({func})")
+        if DATA_DEPENDENT.get(func) is not None or func in _FROM_HOST:
+            raise NotReplayable(f"the step reads the device back or copies host data ({func})")
         out = func(*args, **kwargs)
         self.ops.append((func, args, kwargs, out))
         return out
@@ -231,7 +245,7 @@ class StepGraph:
 
     def _warm_step(self) -> None:
         before = walk(self.root)[1]
-        counter = HostSyncCounter()
+        counter = _ReplayCheck()
         side = self.backend == "cuda"
         if side:  # (CUDA: warm up on a side stream, as a capture needs)
             stream = torch.cuda.Stream()

@@ -568,7 +568,7 @@ class ActorCriticLearner(HPGRLLearner):
         self.theta.index_add_(
             0, slot0[0].reshape(-1), (alpha * advantage[:, None] * slot0[1]).reshape(-1)
         )
-        self.theta[-1] = 0.0
+        self.theta[-1:].zero_()
         # critic: the previous step bootstraps from Q(s, a) of this one; a terminal step at once
         c_alpha = self.critic_alpha(step)
         prev = rows["has_prev"] & valid

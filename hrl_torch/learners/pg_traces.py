@@ -80,7 +80,7 @@ def _apply_static(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor)
 def _add(learner, index: torch.Tensor, step: torch.Tensor) -> None:
     target = learner.grad_sum if learner.config.frozen else learner.theta
     target.index_add_(0, index, step.reshape(-1))
-    target[-1] = 0.0
+    target[-1:].zero_()  # (the sentinel; no tensor from host data)
 
 
 def baseline(learner, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tensor):
