@@ -185,9 +185,10 @@ def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeyp
         trainer = build_trainer(registry.get(domain), algo, opts)
         for _ in range(150):
             trainer.train_step()
-        tables.append({k: v.clone() for k, v in trainer.learner.state_dict().items()})
+        state = trainer.learner.state_dict()
+        tables.append({k: v.clone() for k, v in state.items() if torch.is_tensor(v)})
     a, b = tables
-    assert [k for k in a if torch.is_tensor(a[k]) and not torch.equal(a[k], b[k])] == []
+    assert len(a) > 2 and [k for k in a if not torch.equal(a[k], b[k])] == []
 
 
 def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
