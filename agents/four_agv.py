@@ -79,7 +79,6 @@ from fractions import Fraction
 
 import torch
 from tensordict import TensorDict
-from torch.nn.functional import one_hot
 
 from envs.four_agv import (
     BAYS,
@@ -114,6 +113,7 @@ from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
 from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.ops import one_hot_mask
 from hrl_torch.trainer import TrainConfig
 
 N_JOBS = 2 * N_STATIONS  # DM_1..4, DA_1..4
@@ -428,14 +428,14 @@ class DispatchRule:
         job = torch.where((job >= 0) & (left_at_job == 0), NO_JOB, job)
         part_on_board = (status >= 1) & (status <= N_STATIONS)
         carried = (
-            one_hot(torch.where(part_on_board, status - 1, 0), N_STATIONS)
+            one_hot_mask(torch.where(part_on_board, status - 1, 0), N_STATIONS).long()
             * part_on_board[..., None]
         )
         reserved = drop + carried.sum(1)  # [B, 4] Di slots taken or promised to carried parts
 
         # 2. free acting agents take the best open job, one agent after the other
         for j in range(n):
-            claims = (one_hot(job + 1, N_JOBS + 1)[..., 1:]).sum(1)  # [B, 8]
+            claims = (one_hot_mask(job + 1, N_JOBS + 1).long()[..., 1:]).sum(1)  # [B, 8]
             queue = waiting - claims
             room = cap - reserved - claims[:, :N_STATIONS]
             open_ = (queue > 0) & torch.cat([room > 0, torch.ones_like(room, dtype=torch.bool)], -1)

@@ -216,13 +216,22 @@ class ShipSteeringEnv(BatchedEnv):
             )
         rate = action.reshape(self.batch_size)
         ok = rate.abs() <= MAX_TURN  # NaN compares False
+        if self.deferred_action is not None:  # (no read: raised at the trainer's next read)
+            self.deferred_action.record(~ok & ~self.done, action=rate)
+            return torch.where(ok | self.done, rate, 0.0)  # (a bad row's rate: ignored)
         if not bool((ok | self.done).all()):
             row = int((~ok & ~self.done).nonzero()[0])
-            raise ValueError(
-                f"turning rate {float(rate[row])} outside [-{MAX_TURN}, {MAX_TURN}] "
-                f"deg/s (env row {row})"
-            )
+            raise _bad_rate(row, float(rate[row]))
         return rate
+
+    def defer_checks(self):
+        """Check turning rates without a device read from now on (``hrl_torch.deferred``)."""
+        from hrl_torch.devices import DeferredCheck
+
+        self.deferred_action = DeferredCheck(
+            lambda row, saved: _bad_rate(row, float(saved["action"][row]))
+        )
+        return self.deferred_action
 
     def _sail(self, state: torch.Tensor, rate: torch.Tensor):
         """One sampling interval of every row: ``(next state, crossed the gate, stops)``."""
@@ -269,3 +278,10 @@ def gymnasium_env(render_mode: str | None = None):
     from hrl_torch.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: ShipSteeringEnv(seeds, n), render_mode=render_mode)
+
+
+def _bad_rate(row: int, rate: float) -> ValueError:
+    """The error of a turning rate outside the ship's range in env row ``row``."""
+    return ValueError(
+        f"turning rate {rate} outside [-{MAX_TURN}, {MAX_TURN}] deg/s (env row {row})"
+    )

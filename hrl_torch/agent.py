@@ -157,6 +157,7 @@ class HierarchicalAgent:
         self.rows = self.executor.learner
         self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}
         self.clock = 0
+        self.device_clock: torch.Tensor | None = None  # (``count_on_device``)
         self.ctx: StepContext | None = None
         self.batch: TensorDict | None = None
         self.frozen: FrozenValues | None = None
@@ -224,7 +225,7 @@ class HierarchicalAgent:
     def start(self, obs: TensorDict) -> torch.Tensor:
         """Empty every stack, start at the root and return the first actions ``[B]``."""
         self.executor.reset()
-        return self.executor.act(self.context(obs), self.policy, self.clock)
+        return self.executor.act(self.context(obs), self.policy, self.schedule_clock)
 
     def decide(self, td: TensorDict) -> tuple[torch.Tensor, TensorDict | None]:
         """Steps 1-4 on the env's output ``td``: ``(next actions [B], transitions)``.
@@ -234,7 +235,7 @@ class HierarchicalAgent:
         """
         ctx = self.context(td)
         batch = self.executor.observe(td, ctx, transitions=self.transitions)
-        action = self.executor.act(ctx, self.policy, self.clock)
+        action = self.executor.act(ctx, self.policy, self.schedule_clock)
         if batch is not None:
             with_values(batch, ctx)
         self.batch = batch
@@ -242,8 +243,24 @@ class HierarchicalAgent:
 
     def update(self, batch: TensorDict) -> None:
         """Step 5: learn from one step's transitions; the clock advances by ``E``."""
-        self.learner.update_checked(batch, self.clock)
+        self.learner.update_checked(batch, self.schedule_clock)
         self.clock += self.executor.envs_per_learner
+        if self.device_clock is not None:
+            self.device_clock.add_(self.executor.envs_per_learner)
+
+    @property
+    def schedule_clock(self) -> int | torch.Tensor:
+        """What the schedules read: ``clock``, or its copy on the device (``count_on_device``)."""
+        return self.clock if self.device_clock is None else self.device_clock
+
+    def count_on_device(self) -> None:
+        """Hand the schedules the clock as a device tensor from now on (same values).
+
+        A replayed step reads it; ``update`` moves it on in place.
+        """
+        if self.device_clock is None:
+            dev = self.rows.device
+            self.device_clock = torch.tensor(self.clock, dtype=torch.int64, device=dev)
 
     def step(self, td: TensorDict) -> torch.Tensor:
         """One turn of the loop on the env's output ``td``; returns the next actions ``[B]``."""

@@ -97,10 +97,11 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     # a round re-chooses, with the same draws, only the rows whose seen codes changed (in the
     # others it changes nothing); on the CPU rounds stop when none did (a cheap host read),
     # elsewhere all n - 1 run, so the step reads nothing back (a CUDA graph can replay it)
-    stop_early = ex.device.type == "cpu" if STATIC_ROUNDS is None else not STATIC_ROUNDS
+    cpu = ex.device.type == "cpu" and not ex.static_guard  # (a replayed step: static)
+    stop_early = cpu if STATIC_ROUNDS is None else not STATIC_ROUNDS
     if ctx is None or not stop_early or _changed(agent, rows, used):
         ctx = agent.context(_with_codes(agent, rows, used))
-    action = ex.act(ctx, agent.policy, agent.clock)
+    action = ex.act(ctx, agent.policy, agent.schedule_clock)
     invoked = ex.invoked
     for _ in range(n - 1):
         final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
@@ -113,7 +114,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = agent.context(_with_codes(agent, rows, codes))
-        action = ex.act(ctx, same_draws(agent.policy), agent.clock)
+        action = ex.act(ctx, same_draws(agent.policy), agent.schedule_clock)
         invoked = torch.where(redo[:, None], ex.invoked, invoked)
         used = codes
     ex.invoked = invoked

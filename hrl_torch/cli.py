@@ -272,6 +272,7 @@ def _train_options(args: argparse.Namespace):
         "progress": not args.no_progress,
         "tensorboard": not args.no_tensorboard,
         "check_leaf_rewards": args.check_leaf_rewards,
+        "cuda_graph": not args.no_cuda_graph,
     }
     try:
         state = load_checkpoint(args.resume) if args.resume else None

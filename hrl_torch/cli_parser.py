@@ -135,6 +135,11 @@ def _train_parser(sub) -> argparse.ArgumentParser:
         "--no-progress", action="store_true", help="no progress bar: one line per evaluation"
     )
     train.add_argument(
+        "--no-cuda-graph",
+        action="store_true",
+        help="on a CUDA device, run every training step eagerly (default: replay a CUDA graph)",
+    )
+    train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
     _add_set(train)

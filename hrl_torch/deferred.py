@@ -16,6 +16,7 @@ from hrl_torch.devices import DeferredCheck
 from hrl_torch.env import BatchedEnv
 from hrl_torch.executor import HierarchicalExecutor, SubtaskTimeoutError, bad_step_error
 from hrl_torch.graph import GraphError
+from hrl_torch.learners.pg import HPGRLLearner
 
 __all__ = ["DeferredCheck", "defer_checks", "raise_pending"]
 
@@ -28,8 +29,10 @@ def raise_pending(checks: Iterable[DeferredCheck | None]) -> None:
             raise err
 
 
-def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
+def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[DeferredCheck]:
     """Turn on deferral of ``env``'s action check and ``executor``'s bad-step and stuck checks.
+
+    With ``learner``, the policy-gradient learners among its modules defer their ring check.
 
     Returns the checks to pass to ``raise_pending``; their messages are the immediate ones'.
     """
@@ -75,7 +78,13 @@ def defer_checks(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
     checks.append(g.deferred_ranges)
     # a new executor's invocations have run no step: none reaches the guard for limit - 1
     executor.guard_quiet = max(executor.guard_quiet, limit - 1)
-    if isinstance(env, BatchedEnv) and env.n_actions is not None:  # (overrides of the
-        # env's own action check that skip ``BatchedEnv``'s keep checking at once)
+    if isinstance(env, BatchedEnv) and (
+        env.n_actions is not None or type(env).defer_checks is not BatchedEnv.defer_checks
+    ):  # (overrides of the env's own action check that skip ``BatchedEnv``'s keep checking
+        # at once unless they defer their own, as the ship's does)
         checks.append(env.defer_checks())
+    for module in () if learner is None else learner.modules():
+        if isinstance(module, HPGRLLearner):
+            module.deferred_overflow = DeferredCheck(module.overflow_error)
+            checks.append(module.deferred_overflow)
     return checks

@@ -166,3 +166,14 @@ class DeferredCheck:
             return None
         row = int(self.bad.nonzero()[0])
         return self.describe(row, {k: v.cpu() for k, v in self.saved.items()})
+
+
+#: ``None``: updates compact the rows they touch on the CPU (``nonzero``: cheap there) and keep
+#: static shapes elsewhere (no host read); ``True``: static shapes on every device (what the
+#: counting test checks on the CPU); ``False``: compaction everywhere
+STATIC_SHAPES: bool | None = None
+
+
+def static_shapes(device: torch.device) -> bool:
+    """Whether a training step on ``device`` keeps static shapes (``STATIC_SHAPES``)."""
+    return device.type != "cpu" if STATIC_SHAPES is None else STATIC_SHAPES

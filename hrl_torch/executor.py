@@ -105,6 +105,7 @@ class HierarchicalExecutor:
     OPTIONAL = OPTIONAL
     #: the bad-step and stuck checks when deferred (``hrl_torch.deferred.defer_checks``)
     deferred_bad = deferred_stuck = deferred_timeout = None
+    static_guard = False  #: the guard every step, no read (``hrl_torch.cuda_graph``)
 
     def __init__(
         self,
@@ -258,11 +259,9 @@ class HierarchicalExecutor:
         # a new invocation's come from what it remembers now, not from the previous one's
         new_features = None
         if self._memory_depth >= 0 and ctx.features is not None:
-            # computed for the rows whose stack ends above a level where such a node can start
-            rows = (f["top"] < self._memory_depth).nonzero().squeeze(1)
-            if rows.numel():
-                started = g.start_features(ctx.obs[rows], ctx.features.index_select(0, rows))
-                new_features = ctx.features.index_copy(0, rows, started)
+            # rows whose stack ends above a level where one can start (all rows: static shapes)
+            low = (f["top"] < self._memory_depth)[:, None, None]
+            new_features = torch.where(low, g.start_features(ctx.obs, ctx.features), ctx.features)
         choice = policy.choose_all(ctx, step) if isinstance(policy, ChoosesAll) else None
         if choice is not None:
             top1, own_greedy = self.descent.follow(
@@ -461,28 +460,29 @@ class HierarchicalExecutor:
         cfg = self.config
         # an invocation's steps grow by at most one per step: after seeing the longest at m,
         # none can reach the guard for max - m - 1 steps (stale levels counted too)
-        if self.guard_quiet > 0:
+        if self.guard_quiet > 0 and not self.static_guard:
             self.guard_quiet -= 1
             return None
+        limit = cfg.max_subtask_steps  # (below: the deferred check, or the static mask)
+        over = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= limit)
         if self.deferred_timeout is not None and cfg.on_timeout == "raise":  # (no read)
-            limit = cfg.max_subtask_steps
-            over = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= limit)
             self.deferred_timeout.record(over.any(1), over=over, node=node, inst=f["inst"])
             return None
+        if self.static_guard and cfg.on_timeout != "raise":  # (the mask every step, no read)
+            return over
         longest = f["inv_steps"][:, 1:].amax().tolist() if self.depth > 1 else 0
-        if longest < cfg.max_subtask_steps:
-            self.guard_quiet = cfg.max_subtask_steps - longest - 1
+        if longest < limit:
+            self.guard_quiet = limit - longest - 1
             return None
-        timeout = active & ~is_prim & (self.levels > 0) & (f["inv_steps"] >= cfg.max_subtask_steps)
-        if cfg.on_timeout == "raise" and bool(timeout.any()):
-            row, lvl = (int(v) for v in timeout.nonzero()[0])
+        if cfg.on_timeout == "raise" and bool(over.any()):
+            row, lvl = (int(v) for v in over.nonzero()[0])
             name = self.graph.names[int(node[row, lvl])]
             path = self.graph.instance_path(int(f["inst"][row, lvl]))
             raise SubtaskTimeoutError(
                 f"subtask {name!r} ran {cfg.max_subtask_steps} primitive steps without "
                 f"terminating (env row {row}, instance {path})"
             )
-        return timeout
+        return over
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:

@@ -63,6 +63,8 @@ class RunOptions:
         settings: the algorithm's settings changed by name (``hrl-torch train --set``):
             ``{"learner.alpha": 0.2, "exploration.epsilon.end": 0.01}``, applied by
             ``hrl_torch.domain.with_overrides``; the options above win over their names.
+        cuda_graph: replay the training step as a CUDA graph on a CUDA device
+            (``TrainConfig.cuda_graph``; ``--no-cuda-graph`` turns it off).
     """
 
     seeds: Sequence[int] = (0,)
@@ -83,6 +85,7 @@ class RunOptions:
     check_env: bool = True
     check_leaf_rewards: bool = False
     settings: dict = field(default_factory=dict)
+    cuda_graph: bool = True
 
     def __post_init__(self) -> None:
         self.seeds = check_seeds(self.seeds)
@@ -204,7 +207,7 @@ def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
         for k in ("steps", "eval_every", "eval_episodes", "threshold", "checkpoint_every")
         if given[k] is not None
     }
-    config = replace(spec.train, progress=opts.progress, **changes)
+    config = replace(spec.train, progress=opts.progress, cuda_graph=opts.cuda_graph, **changes)
     if opts.check_leaf_rewards:
         config.check_leaf_rewards = True
     return config

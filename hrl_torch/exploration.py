@@ -58,6 +58,9 @@ class Linear(_PerLearnerFields):
 
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
+        if isinstance(step, torch.Tensor):  # (a device clock: the same float64 arithmetic)
+            frac = (step.double() / max(self.steps, 1)).clamp(0.0, 1.0)
+            return torch.where(frac == 1.0, self.end, self.start + frac * (self.end - self.start))
         frac = min(max(step / max(self.steps, 1), 0.0), 1.0)
         return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)
 
@@ -76,9 +79,17 @@ class Exponential(_PerLearnerFields):
 
     def __call__(self, step: int) -> float:
         """Value at ``step``."""
-        value = self.start * self.decay ** (step // max(self.every, 1))
-        if is_per_learner(value) or is_per_learner(self.minimum):
-            return torch.maximum(torch.as_tensor(self.minimum, dtype=torch.float64), value)
+        every = max(self.every, 1)
+        if isinstance(step, torch.Tensor):  # (a device clock)
+            value = self.start * torch.pow(self.decay, (step // every).double())
+        else:
+            value = self.start * self.decay ** (step // every)
+        if isinstance(value, torch.Tensor):
+            if is_per_learner(self.minimum):
+                return torch.maximum(self.minimum, value)
+            return value.clamp_min(self.minimum)
+        if is_per_learner(self.minimum):
+            return self.minimum.clamp_min(value)
         return max(self.minimum, value)
 
 
@@ -178,6 +189,8 @@ class Boltzmann:
         temperature = self.temperature(step)
         if is_per_learner(temperature):
             temp = _at_rows(temperature.clamp_min(1e-8), learner, q[..., 0])[..., None]
+        elif isinstance(temperature, torch.Tensor):  # (a device clock's value)
+            temp = temperature.clamp_min(1e-8)
         else:
             temp = max(temperature, 1e-8)
         logits = (q / temp).masked_fill(~available, -math.inf)

@@ -254,4 +254,4 @@ class TileValueHead(Head):
     def add(self, tiles: torch.Tensor, step: torch.Tensor) -> None:
         """``w[tile] += step`` for every tile of each row (``step [n]``; sentinel stays 0)."""
         self.w.index_add_(0, tiles.reshape(-1), step[:, None].expand_as(tiles).reshape(-1))
-        self.w[-1] = 0.0
+        self.w[-1:].zero_()  # (the sentinel; no tensor from host data)

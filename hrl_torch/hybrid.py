@@ -147,18 +147,21 @@ class HybridPolicy:
         node = lrn.graph.inst_node[inst]
         pg_row = lrn.pg.node_group[node] >= 0
         out = lrn.pg.select(inst, ctx, available, u[:, a + 1 :], self.greedy, rows=rows)
-        if not bool(pg_row.all()):
-            q = lrn.value.action_values(inst, ctx, rows)
-            best, _ = Greedy().select(q, available, u, step)
-            if self.greedy:
-                v_choice, v_flag = best, torch.ones_like(pg_row)
-            elif lrn.epsilon is not None:
-                learner = ctx.learner if rows is None else ctx.learner[rows]
-                explore = u[:, a] < lrn.epsilon.values()[learner]
-                v_choice = torch.where(explore, uniform_choice(available, u[:, :a]), best)
-                v_flag = v_choice == best
-            else:
-                v_choice, v_flag = self.exploration.select(q, available, u[:, : a + 1], step)
-            out.child = torch.where(pg_row, out.child, v_choice)
-            out.greedy = torch.where(pg_row, out.greedy, v_flag)
+        # the value nodes' choices for every row (static shapes: no read of which rows are
+        # PG's); on the CPU they are skipped when every row is (a read that syncs nothing)
+        if not lrn.pg.static(pg_row.device) and bool(pg_row.all()):
+            return out
+        q = lrn.value.action_values(inst, ctx, rows)
+        best, _ = Greedy().select(q, available, u, step)
+        if self.greedy:
+            v_choice, v_flag = best, torch.ones_like(pg_row)
+        elif lrn.epsilon is not None:
+            learner = ctx.learner if rows is None else ctx.learner[rows]
+            explore = u[:, a] < lrn.epsilon.values()[learner]
+            v_choice = torch.where(explore, uniform_choice(available, u[:, :a]), best)
+            v_flag = v_choice == best
+        else:
+            v_choice, v_flag = self.exploration.select(q, available, u[:, : a + 1], step)
+        out.child = torch.where(pg_row, out.child, v_choice)
+        out.greedy = torch.where(pg_row, out.greedy, v_flag)
         return out

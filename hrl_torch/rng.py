@@ -115,6 +115,9 @@ class BatchRNG:
         )
         self.counter = 0
         self._ahead: dict = {}  # kind -> (first draw, its draws onward, the columns)
+        self.device_counter: torch.Tensor | None = None  # (``count_on_device``)
+        self._counted = 0  # ``counter`` when ``device_counter`` last matched it
+        self._col_keys: dict = {}  # tuple of columns -> their numbers on the device
         self._known: dict = {}  # id(columns) -> (columns, their values as a list)
 
     def know_columns(self, columns: torch.Tensor, values: list[int]) -> None:
@@ -172,6 +175,9 @@ class BatchRNG:
         if counter is None:
             counter = self.counter
             self.counter += 1
+        if self.device_counter is not None:  # (replayable: no block, the number on the device)
+            u = self._at_device(extra, counter, columns)
+            return u if transform is None else transform(u)
         block = self._ahead.get(key)
         if block is None or not block[0] <= counter < block[0] + block[1].shape[0]:
             u = self._block(extra, counter, columns)
@@ -201,8 +207,42 @@ class BatchRNG:
         computing only those numbers (for large batches of which few rows need a draw).
         """
         row_key = self._row_key.index_select(0, rows)
+        if self.device_counter is not None:
+            return self._at_device(extra, counter, columns, row_key)
         bits = self._bits(extra, counter, 1, self._column_list(columns), row_key)
         return _to_uniform(bits).view(rows.shape[0], *columns.shape)
+
+    def count_on_device(self) -> None:
+        """Draw numbers from a device counter from now on (a CUDA graph replays its draws).
+
+        A draw number is then ``device_counter + (counter - counted)``: the offset within a
+        step is the same every step, so a replayed step reads fresh draws once ``sync_counter``
+        (in the replayed step) has moved the device counter on. Same numbers as the blocks.
+        """
+        if self.device_counter is None:
+            self.device_counter = torch.tensor(self.counter, dtype=torch.int64, device=self.device)
+            self._counted = self.counter
+
+    def sync_counter(self) -> None:
+        """Move the device counter on by the draws taken since the last call (in place)."""
+        if self.device_counter is not None:
+            self.device_counter.add_(self.counter - self._counted)
+            self._counted = self.counter
+
+    def _at_device(self, extra: int, counter: int, columns=None, row_key=None) -> torch.Tensor:
+        """Draw ``counter`` (``uniform``'s shapes) hashed from ``device_counter`` on the device."""
+        row_key = self._row_key if row_key is None else row_key
+        number = self.device_counter + (counter - self._counted)
+        base = mix32((number * 0x9E3779B1 + 0x7F4A7C15) & _MASK32)  # ``_draw_key`` on the device
+        if extra == 0:
+            return _to_uniform(mix32(row_key ^ base))
+        listed = tuple(range(extra) if columns is None else self._column_list(columns))
+        cols = self._col_keys.get(listed)
+        if cols is None:  # (made once, before a capture: a graph copies nothing from the host)
+            cols = self._col_keys[listed] = torch.tensor(listed, device=self.device)
+        keys = mix32((cols + base) & _MASK32)
+        u = _to_uniform(mix32(row_key[:, None] ^ keys[None, :]))
+        return u if columns is None else u.view(row_key.shape[0], *columns.shape)
 
     def reserve(self, n: int) -> int:
         """Reserve ``n`` draw numbers; returns the first (read them with ``counter=``)."""
@@ -236,6 +276,8 @@ class BatchRNG:
         sub = copy.copy(self)
         sub._row_key = self._row_key[rows]
         sub._ahead = {}
+        if self.device_counter is not None:  # (its own counter: the two move apart)
+            sub.device_counter = self.device_counter.clone()
         return sub
 
     def to(self, device: torch.device | str) -> BatchRNG:
@@ -243,6 +285,9 @@ class BatchRNG:
         self.device = torch.device(device)
         self._row_key = self._row_key.to(self.device)
         self._ahead = {}
+        if self.device_counter is not None:
+            self.device_counter = self.device_counter.to(self.device)
+            self._col_keys = {k: v.to(self.device) for k, v in self._col_keys.items()}
         return self
 
     def state_dict(self) -> dict[str, int]:
@@ -252,6 +297,9 @@ class BatchRNG:
     def load_state_dict(self, state: dict[str, int]) -> None:
         """Continue from a saved counter."""
         self.counter = int(state["counter"])
+        if self.device_counter is not None:
+            self.device_counter.fill_(self.counter)
+            self._counted = self.counter
 
 
 def choosing_levels(graph, width: int) -> torch.Tensor:

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from hrl_torch.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.checkpoint import Checkpointer
+from hrl_torch.cuda_graph import step_for
 from hrl_torch.deferred import defer_checks, raise_pending
 from hrl_torch.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
 from hrl_torch.executor import ExecutorConfig
@@ -85,7 +86,7 @@ class Trainer:
         self.agent = self.make_agent(env, "explore")
         self.rows = env.learner_of_row()
         self.source = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
-        self.deferred = defer_checks(env, self.agent.executor)  # (docs/bad-input.md)
+        self.deferred = defer_checks(env, self.agent.executor, self.learner)  # (docs/bad-input.md)
         skip = self.executor_config.on_bad_step == "skip"
         self.episodes = EpisodeTracker(
             env.batch_size, self.P, self.E, self.config.success_key, env.device, skip
@@ -136,7 +137,10 @@ class Trainer:
         return self.agent.policy
 
     def train_step(self) -> None:
-        """One batched step: every row takes one primitive action, the learner updates."""
+        """One batched step of every row and the learner (CUDA: a graph, ``cuda_graph``)."""
+        replay = self.__dict__.get("_graph") or self.__dict__.setdefault("_graph", step_for(self))
+        if replay():  # (it ran the step; inside, it calls this again for the eager step)
+            return
         td, batch = self.source.step(self.env)
         if self.agent.learn:
             self.agent.update(batch)
@@ -341,3 +345,5 @@ class LoopCounters:
         self.train_seconds = float(state["train_seconds"])
         self.real_steps = state["real_steps"].clone()
         self.next = {k: int(v) for k, v in state["next"].items()}
+
+

@@ -24,6 +24,8 @@ class TrainConfig:
             the termination is a success where the field ``name`` is False).
         check_leaf_rewards: warn when one abstract state of a primitive sees different rewards
             (``hrl_torch.monitor.LeafRewardMonitor``; single-agent training only).
+        cuda_graph: on a CUDA device, replay the training step as a captured CUDA graph after
+            a few eager steps (``hrl_torch.cuda_graph``; same tables as the eager step).
     """
 
     steps: int = 50_000
@@ -36,6 +38,7 @@ class TrainConfig:
     progress: bool = True
     success_key: str = "terminated"
     check_leaf_rewards: bool = False
+    cuda_graph: bool = True
 
     def __post_init__(self) -> None:
         lowest = {"steps": 0, "eval_every": 0, "eval_episodes": 0, "eval_max_steps": 1}

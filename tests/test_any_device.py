@@ -17,28 +17,16 @@ from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.sync_count import HostSyncCounter, count_train_step
 
 PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
-#: configurations whose training step makes no host read (the counting test guards them)
-NO_HOST_READ = list(
-    dict.fromkeys(
-        [  # (the four named configurations first; no pair twice)
-            ("taxi", "maxq-q"),
-            ("small-agv", "har"),
-            ("four-agv", "cooperative"),
-            *[("taxi", a) for a in ("smdp-q", "q")],
-            *[("small-agv", a) for a in ("hdr", "rar", "maxq-q", "hh", "rvi-q")],
-            *[(d, a) for d in ("agv", "agv-ct") for a in ("har", "rar", "hdr")],
-            *[(d, a) for d in ("four-rooms", "key-door") for a in ("maxq-q", "q")],
-            *[("taxi-fuel", a) for a in ("maxq-q", "q")],
-            *[
-                ("four-agv", a)
-                for a in registry.get("four-agv").algos
-                if a not in ("fcfs", "hqf", "nsf")
-            ],
-            *[("trash", a) for a in registry.get("trash").algos],
-            *[("two-taxi", a) for a in registry.get("two-taxi").algos],
-        ]
-    )
-)
+#: configurations whose training step makes no host read (the counting test guards them):
+#: every registered one, the four the issue names first (taxi MAXQ-Q, small-AGV HAR, the ship
+#: hybrid, four-AGV Cooperative HRL)
+NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
+NAMED.append(("four-agv", "cooperative"))
+NO_HOST_READ = list(dict.fromkeys([*NAMED, *PAIRS]))
+
+
+def test_every_registered_configuration_is_guarded():
+    assert set(NO_HOST_READ) == set(PAIRS) and NO_HOST_READ[:4] == NAMED
 
 
 def _options(device: str = "cpu") -> RunOptions:
@@ -101,8 +89,10 @@ def test_a_training_step_runs_on_meta(domain, algo):
 @pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
 def test_a_training_step_reads_nothing_back(domain, algo, monkeypatch):
     import hrl_torch.broadcast
+    import hrl_torch.devices
 
     monkeypatch.setattr(hrl_torch.broadcast, "STATIC_ROUNDS", True)  # as off the CPU
+    monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", True)  # (masks, as off the CPU)
     trainer = build_trainer(registry.get(domain), algo, _options())
     # from the first step on, past a block of random draws (BatchRNG.AHEAD = 64)
     counter = count_train_step(trainer, 70, stacks=True)
@@ -178,3 +168,48 @@ def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_m
     err = check.error()
     assert isinstance(err, ValueError)
     assert str(err) == "action 7 of agent 1 outside the action space [0, 7) (env row 1)"
+
+
+@pytest.mark.parametrize(
+    ("domain", "algo"),
+    [("ship-steering", "hybrid"), ("ship-steering", "flat-pg"), ("taxi-fuel", "hpgrl")],
+)
+def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeypatch):
+    import hrl_torch.devices
+
+    tables = []
+    for static in (False, True):  # (the CPU's row compaction; the masks used off the CPU)
+        monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", static)
+        opts = _options()
+        opts.envs_per_learner = 3
+        trainer = build_trainer(registry.get(domain), algo, opts)
+        for _ in range(150):
+            trainer.train_step()
+        state = trainer.learner.state_dict()
+        tables.append({k: v.clone() for k, v in state.items() if torch.is_tensor(v)})
+    a, b = tables
+    assert len(a) > 2 and [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
+def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
+    trainer = build_trainer(registry.get("ship-steering"), "flat-pg", _options())
+    step = trainer.env.step
+
+    def bad_rate_in_row_1(action):
+        return step(action.index_fill(0, torch.tensor([1]), 99.0))
+
+    trainer.env.step = bad_rate_in_row_1
+    message = r"turning rate 99.0 outside \[-15.0, 15.0\] deg/s \(env row 1\)"
+    with pytest.raises(ValueError, match=message):
+        trainer.train(steps=4)
+
+
+def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
+    opts = _options()
+    trainer = build_trainer(registry.get("taxi-fuel"), "hpgrl", opts)
+    trainer.learner.config.trace_len = 2  # (rings of 3 entries: the first longer invocation)
+    trainer.learner._rows.clear()
+    for _ in range(12):
+        trainer.train_step()  # (deferred: no raise inside the step)
+    with pytest.raises(RuntimeError, match=r"selected more than trace_len=2 children"):
+        raise_pending(trainer.deferred)

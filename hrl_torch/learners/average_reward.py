@@ -77,9 +77,12 @@ class GainEstimate(nn.Module):
         mask: torch.Tensor,
     ) -> None:
         """Add the segments where ``mask`` (all arguments broadcast together)."""
-        learner, slot, reward, time, mask = torch.broadcast_tensors(
-            learner, torch.as_tensor(slot, device=learner.device), reward, time, mask
-        )
+        if isinstance(slot, torch.Tensor):
+            learner, slot, reward, time, mask = torch.broadcast_tensors(
+                learner, slot, reward, time, mask
+            )
+        else:  # (a fixed slot: no tensor made from host data each step)
+            learner, reward, time, mask = torch.broadcast_tensors(learner, reward, time, mask)
         idx = (learner * self.n_slots + slot).reshape(-1)
         m = mask.reshape(-1).double()
         self.reward.view(-1).index_add_(0, idx, reward.reshape(-1).double() * m)

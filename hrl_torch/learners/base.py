@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from hrl_torch.devices import MovesTensorAttrs
+from hrl_torch.devices import MovesTensorAttrs, static_shapes
 from hrl_torch.eval_plan import EvalPlan
 from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
 from hrl_torch.exploration import (
@@ -70,6 +70,12 @@ class Learner(MovesTensorAttrs, nn.Module):
     all_instances_at_once: bool = False
     #: width ``K`` of the likelihood-ratio terms its policy returns (PG nodes; 0: none)
     score_width: int = 0
+    #: masks over every row instead of compacting rows (``None``: ``devices.static_shapes``)
+    static_rows: bool | None = None
+
+    def static(self, device: torch.device) -> bool:
+        """Whether an update on ``device`` keeps static shapes (no host read) or compacts."""
+        return static_shapes(device) if self.static_rows is None else self.static_rows
 
     def __init__(self, graph: TaskGraph, n_learners: int) -> None:
         super().__init__()

@@ -37,6 +37,7 @@ SARSA(0); the actor steps ``beta (Q(s, a) - Q(s, a_mean)) grad log mu(a|s)`` eve
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -48,6 +49,7 @@ from hrl_torch.exploration import Schedule, as_schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.learners.base import Learner
+from hrl_torch.learners.pg_traces import apply_traces
 from hrl_torch.ops import lookup
 from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
 from hrl_torch.rng import LevelDraws
@@ -203,7 +205,11 @@ class HPGRLLearner(Learner):
         batches: dict[object, list[int]] = {}
         for t, name in enumerate(names):
             batches.setdefault(self.heads[name].batch_key(), []).append(t)
-        self._batches = [(self.heads[names[ts[0]]], torch.tensor(ts)) for ts in batches.values()]
+        self._batches = [(self.heads[names[ts[0]]], ts[0]) for ts in batches.values()]
+        group_batch = torch.zeros(len(names), dtype=torch.long)  # each group's batch
+        for i, ts in enumerate(batches.values()):
+            group_batch[ts] = i
+        self.register_buffer("group_batch", group_batch, persistent=False)
         self.register_buffer("node_group", node_group, persistent=False)
         pg_inst = node_group[g.inst_node] >= 0
         depths = sorted({int(d) for d in g.inst_depth[pg_inst]})
@@ -266,8 +272,14 @@ class HPGRLLearner(Learner):
         return {k: v.clone() for k, v in self._rows.items()}
 
     def set_extra_state(self, state: dict) -> None:
-        """Restore ``get_extra_state``."""
+        """Restore ``get_extra_state``.
+
+        Ring indices are clamped into ``theta`` as ``update`` keeps them (an older checkpoint
+        may hold others in unused entries).
+        """
         self._rows = {k: v.clone() for k, v in state.items()}
+        if "index" in self._rows:
+            self._rows["index"].clamp_(0, self.sentinel)
 
     # ------------------------------------------------------------------ acting
     def select(
@@ -289,7 +301,8 @@ class HPGRLLearner(Learner):
         for its rows; with ``greedy`` it takes the mode, otherwise it samples and the choice
         carries its likelihood-ratio term (``score_index``/``score_value``), which the executor
         keeps on the stack until the child ends and hands to ``update`` with the transition.
-        Only the rows on PG nodes are computed.
+        Every row is computed (static shapes, no host read); the rows off PG nodes keep the
+        defaults.
         """
         g, b, dev = self.graph, inst.shape[0], inst.device
         choice = torch.zeros(b, dtype=torch.long, device=dev)
@@ -299,59 +312,69 @@ class HPGRLLearner(Learner):
         score = torch.zeros(b, self.width, device=dev)
         out = Choice(choice, flag, action, None if greedy else index, None if greedy else score)
         node = lookup(g.inst_node, inst)
-        batch_rows = rows
-        rows = (lookup(self.node_group, node) >= 0).nonzero().squeeze(1)  # (in this batch)
-        if rows.numel() == 0:
-            return out
-        node, gid = node[rows], lookup(self.node_group, node[rows])
-        ctx_rows = rows if batch_rows is None else batch_rows.index_select(0, rows)
+        gid = lookup(self.node_group, node)
+        on_pg = gid >= 0
+        ctx_rows = torch.arange(b, device=dev) if rows is None else rows
         at = ctx_rows * g.n_nodes + node  # (row, node) in the context's flat [B * N, ...] fields
         features = None
         if ctx.features is not None:
             features = ctx.features.view(-1, ctx.features.shape[2]).index_select(0, at)
+            features = torch.where(on_pg[:, None], features, 0.0)
+        gid = gid.clamp_min(0)
         inp = PolicyInput(
-            base=ctx.learner[ctx_rows] * self.total + lookup(self.params.offset, gid),
-            state=torch.take(ctx.abstract, at),
+            base=lookup(self.params.offset, gid),  # (+ the learner's block: ``_act_heads``)
+            state=torch.where(on_pg, torch.take(ctx.abstract, at), 0),
             features=features,
-            available=available[rows],
-            u=u[rows],
+            available=available,
+            u=u,
             step=step,
         )
-        part = self._act_heads(inp, gid, greedy)
-        choice[rows], flag[rows] = part.child, part.greedy
+        part = self._act_heads(inp, gid, greedy, ctx.learner[ctx_rows] * self.total)
+        out.child = torch.where(on_pg, part.child, choice)
+        out.greedy = torch.where(on_pg, part.greedy, flag)
         if action is not None and part.action is not None:
-            action[rows, 0] = part.action
+            out.action = torch.where(on_pg[:, None], part.action[:, None], action)
         if not greedy:
-            index[rows], score[rows] = part.index, part.score
+            out.score_index = torch.where(on_pg[:, None], part.index, index)
+            out.score_value = torch.where(on_pg[:, None], part.score, score)
         return out
 
-    def _act_heads(self, inp: PolicyInput, gid: torch.Tensor, greedy: bool) -> PolicyChoice:
-        """Every batch of heads acts on its rows; the choices padded to ``width`` and merged."""
+    def _act_heads(self, inp: PolicyInput, gid, greedy: bool, block) -> PolicyChoice:
+        """Every batch of heads acts on every row, each row keeping its own batch's choice.
+
+        ``inp.base`` is the offset of each row's group, ``block [n]`` that of its learner; a
+        row of another batch is shown the batch's first group at state 0 (static shapes).
+        """
         n, dev = gid.shape[0], gid.device
         index = torch.full((n, self.width), self.sentinel, dtype=torch.long, device=dev)
         score = torch.zeros(n, self.width, device=dev)
         child = torch.zeros(n, dtype=torch.long, device=dev)
         flag = torch.full((n,), greedy, dtype=torch.bool, device=dev)
         action = torch.zeros(n, device=dev) if self.has_gauss else None
-        for head, groups in self._batches:
-            if len(self._batches) == 1:
-                sel, part = slice(None), inp
-            else:
-                sel = torch.isin(gid, groups.to(dev)).nonzero().squeeze(1)
-                part = PolicyInput(
-                    inp.base[sel],
-                    inp.state[sel],
-                    None if inp.features is None else inp.features[sel],
-                    inp.available[sel],
-                    inp.u[sel],
-                    inp.step,
+        for i, (head, first) in enumerate(self._batches):
+            mine, part = None, inp
+            if len(self._batches) > 1:
+                mine = lookup(self.group_batch, gid) == i
+                first = self.params.offset[first]
+                part = dataclasses.replace(
+                    inp,
+                    base=torch.where(mine, inp.base, first),
+                    state=torch.where(mine, inp.state, 0),
                 )
-            out = head.act(self.theta, part, greedy)
-            k = out.index.shape[1]
-            index[sel, :k], score[sel, :k] = out.index, out.score
-            child[sel], flag[sel] = out.child, out.greedy
+            out = head.act(self.theta, dataclasses.replace(part, base=part.base + block), greedy)
+            pad = (0, self.width - out.index.shape[1])
+            if pad[1]:
+                out.index = torch.nn.functional.pad(out.index, pad, value=self.sentinel)
+                out.score = torch.nn.functional.pad(out.score, pad)
+            part = (out.child, out.greedy, out.index, out.score)
+            if mine is None:
+                child, flag, index, score = part
+            else:
+                child, flag = torch.where(mine, part[0], child), torch.where(mine, part[1], flag)
+                index = torch.where(mine[:, None], part[2], index)
+                score = torch.where(mine[:, None], part[3], score)
             if out.action is not None:
-                action[sel] = out.action
+                action = out.action if mine is None else torch.where(mine, out.action, action)
         return PolicyChoice(child, flag, action, index, score)
 
     def make_policy(self, exploration, rng, evaluate: bool = False) -> PGPolicy:
@@ -392,86 +415,47 @@ class HPGRLLearner(Learner):
         valid = level["valid"].index_select(1, depths) & (torch.take(self.node_group, node) >= 0)
         r = self.rewards(batch, node, depths)
         count, k = rows["count"], cfg.trace_len
-        if bool((valid & (count >= k)).any()):
-            name = self.graph.names[int(node[valid & (count >= k)][0])]
-            raise RuntimeError(
-                f"PG node {name!r} selected more than trace_len={k} children in one invocation; "
-                "raise PGConfig.trace_len or bound the subtask with the executor's guard"
-            )
+        self._check_overflow(valid & (count >= k), node)
         # line 14: z_{k+1} = z_k + grad mu / mu (the ended child's choice joins the ring):
         # one slot per (row, depth), the last (k) for the pairs with nothing to add
-        slot = (self._pair_base(b, valid.device) + torch.where(valid, count, k)).view(-1)
+        slot = self._pair_base(b, valid.device) + torch.where(valid, count, k).clamp_max(k)
+        slot = slot.view(-1)
         for key, src in (("index", "score_index"), ("value", "score_value")):
-            ring = rows[key]
-            ring.view(-1, ring.shape[-1]).index_copy_(
-                0, slot, level[src].index_select(1, depths).flatten(0, 1)
-            )
+            ring, new = rows[key], level[src].index_select(1, depths).flatten(0, 1)
+            if key == "index":  # (every ring entry stays an index into theta)
+                new = new.clamp(0, self.sentinel)
+            ring.view(-1, ring.shape[-1]).index_copy_(0, slot, new)
         rows["reward"].view(-1).index_copy_(0, slot, r.reshape(-1))
-        count += valid
+        rows["count"] = count = (count + valid).clamp_max(k)  # (past k: an overflow, raised)
         ended = invocation_ended(batch, depths) & (count > 0)
         # line 16: every entry of z weighted by this step's R + r~ now (online), or by its
         # reward-to-go once the cycle ends (Equation 5.2)
         cell = batch["learner"][:, None] * len(self.group_names) + torch.take(
             self.node_group, node
         ).clamp(0)
-        self._apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
-        if cfg.frozen and bool(ended.any()):
-            gid = self.node_group[node]
-            self.cycles.view(-1).index_add_(
-                0,
-                (batch["learner"][:, None] * len(self.group_names) + gid.clamp_min(0))[ended],
-                torch.ones(int(ended.sum()), device=self.cycles.device),
-            )
+        apply_traces(self, rows, valid if cfg.online else ended, self.alpha(step), cell)
+        if cfg.frozen:  # (cycles ended per learner and group)
+            self.cycles.view(-1).index_add_(0, cell.view(-1), ended.view(-1).float())
         rows["count"] = count.masked_fill(ended, 0)
 
-    def _apply_traces(self, rows, pairs: torch.Tensor, alpha: float, cell: torch.Tensor) -> None:
-        """``theta += alpha * sum_n w_n g_n`` over the ring entries of the selected (row, depth).
+    def _check_overflow(self, over: torch.Tensor, node: torch.Tensor) -> None:
+        """Raise (or, deferred, latch) a (row, depth) whose ring is full ``over [B, S]``."""
+        deferred = self.__dict__.get("deferred_overflow")
+        if deferred is not None and deferred.takes(over):  # (no read: ``defer_checks``)
+            deferred.record(over.any(1), over=over, node=node)
+        elif bool(over.any()):
+            row = int(over.any(1).nonzero()[0])
+            raise self.overflow_error(row, {"over": over, "node": node})
 
-        Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).
-        At the renewal: ``w_n = sum_{k >= n} beta^(k - n) r_k - b``, the (discounted)
-        reward-to-go of Equation 5.2 less the baseline of the pair's (learner, group) ``cell``
-        ``[B, S]``. Only the filled entries of the selected pairs are read.
-        """
-        pair = pairs.view(-1).nonzero().squeeze(1)  # flat (row, depth) ids
-        if pair.numel() == 0:
-            return
-        k1, beta = self.config.trace_len + 1, self.config.beta
-        count = lookup(rows["count"].view(-1), pair)
-        slot = torch.arange(k1, device=pair.device)
-        filled = slot < count[:, None]
-        reward = lookup(rows["reward"].view(-1, k1), pair).double() * filled
-        if self.config.online:
-            last = reward.gather(1, (count - 1)[:, None])
-            weight = last * beta ** (count[:, None] - 1 - slot).clamp_min(0).double()
-        elif beta == 1.0:
-            weight = reward.flip(1).cumsum(1).flip(1)
-        else:
-            scale = beta ** slot.double()
-            weight = (reward * scale).flip(1).cumsum(1).flip(1) / scale
-        if self.config.baseline:
-            weight = weight - self._baseline(lookup(cell.view(-1), pair), weight, filled)
-        sel = filled.nonzero()
-        entry = pair[sel[:, 0]] * k1 + sel[:, 1]  # flat ring-entry ids
-        index = lookup(rows["index"].view(-1, self.width), entry)
-        value = lookup(rows["value"].view(-1, self.width), entry)
-        w = weight[sel[:, 0], sel[:, 1]].float()
-        if self.config.frozen:
-            self.grad_sum.index_add_(0, index.reshape(-1), (w[:, None] * value).reshape(-1))
-            self.grad_sum[-1] = 0.0
-            return
-        self.theta.index_add_(0, index.reshape(-1), (alpha * w[:, None] * value).reshape(-1))
-        self.theta[-1] = 0.0
-
-    def _baseline(self, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tensor):
-        """``b`` of each cycle's ``cell`` ``[n, 1]``; then ``b += rate (mean R_n - b)``."""
-        b = self.reward_to_go_mean.view(-1)
-        used = b[cell][:, None].double()
-        sums = torch.zeros_like(b, dtype=torch.float64).index_add_(0, cell, (togo * filled).sum(1))
-        counts = torch.zeros_like(sums).index_add_(0, cell, filled.sum(1).double())
-        seen = counts > 0
-        mean = (sums / counts.clamp_min(1)).float()
-        b.add_(torch.where(seen, self.config.baseline * (mean - b), 0.0))
-        return used
+    def overflow_error(self, row: int, saved: dict) -> RuntimeError:
+        """The error of a ring that overflowed in batch row ``row``."""
+        depth = int(saved["over"][row].nonzero()[0])
+        name = self.graph.names[int(saved["node"][row, depth])]
+        return RuntimeError(
+            f"PG node {name!r} selected more than trace_len={self.config.trace_len} children in "
+            "one invocation; raise PGConfig.trace_len or bound the subtask with the executor's "
+            "guard"
+        )
 
 
 class PGPolicy:
@@ -584,7 +568,7 @@ class ActorCriticLearner(HPGRLLearner):
         self.theta.index_add_(
             0, slot0[0].reshape(-1), (alpha * advantage[:, None] * slot0[1]).reshape(-1)
         )
-        self.theta[-1] = 0.0
+        self.theta[-1:].zero_()
         # critic: the previous step bootstraps from Q(s, a) of this one; a terminal step at once
         c_alpha = self.critic_alpha(step)
         prev = rows["has_prev"] & valid

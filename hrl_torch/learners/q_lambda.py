@@ -153,34 +153,60 @@ class QLambdaLearner(TabularLearner):
         delta = torch.where(valid, target - self.Q.read(idx, valid), 0.0)
         self.record_td(learner, node, delta, valid)
 
-        # only the (row, depth) pairs with a transition touch their traces
-        pair = valid.view(-1).nonzero().squeeze(1)
-        if pair.numel():
-            k = self.trace_len
-            take = lambda x: lookup(x.reshape(-1), pair)  # noqa: E731
-            ring = {key: lookup(rows[key].view(-1, k), pair) for key in ("index", "row", "trace")}
-            trace = ring["trace"]
-            # Watkins: an exploratory choice cuts the traces of the choices before it
-            trace = torch.where(take(pick("greedy"))[:, None], trace, 0.0)
-            # replacing traces: e(s, .) = 0, then e(s, a) = 1 in the next ring slot
-            sa, state_row = take(idx), take(idx - child)
-            trace = trace.masked_fill(ring["row"] == state_row[:, None], 0.0)
-            slot = take(rows["ptr"])[:, None]
-            ring["index"].scatter_(1, slot, sa[:, None])
-            ring["row"].scatter_(1, slot, state_row[:, None])
-            trace.scatter_(1, slot, 1.0)
-            # Q <- Q + alpha delta e (same-step contributions: trace-weighted mean)
-            self._add(ring["index"], take(delta)[:, None] * trace, trace, self.alpha(step))
-            # e <- gamma^tau lambda e
-            ring["trace"] = trace * (take(discount) * self.lam)[:, None]
-            for key, value in ring.items():
-                rows[key].view(-1, k).index_copy_(0, pair, value)
-            rows["ptr"].view(-1).index_copy_(0, pair, (slot[:, 0] + 1) % k)
+        # only the (row, depth) pairs with a transition touch their traces: compacted on the
+        # CPU, masked elsewhere (static shapes, no read; the others add 0 and keep theirs)
+        alpha, fields = self.alpha(step), (pick("greedy"), idx, child, delta, discount)
+        if self.static(valid.device):
+            self._traces(rows, valid, None, fields, alpha)
+        else:
+            pair = valid.view(-1).nonzero().squeeze(1)
+            if pair.numel():
+                self._traces(rows, valid, pair, fields, alpha)
         # a finished invocation starts with empty traces
         ended = invocation_ended(batch, depths)
         rows["trace"] = rows["trace"].masked_fill(ended[..., None], 0.0)
         rows["row"] = rows["row"].masked_fill(ended[..., None], -1)
         rows["ptr"] = rows["ptr"].masked_fill(ended, 0)
+
+    def _traces(self, rows, valid, pair, fields, alpha) -> None:
+        """Watkins Q(lambda) on the rings of the pairs ``pair`` (flat ids).
+
+        ``pair=None``: every pair, ``valid [B, S]`` masking the others (static shapes).
+        """
+        k = self.trace_len
+        if pair is None:
+            take = lambda x: x.reshape(-1)  # noqa: E731
+            ring = {key: rows[key].view(-1, k) for key in ("index", "row", "trace")}
+        else:
+            take = lambda x: lookup(x.reshape(-1), pair)  # noqa: E731
+            ring = {key: lookup(rows[key].view(-1, k), pair) for key in ("index", "row", "trace")}
+        greedy, idx, child, delta, discount = fields
+        # Watkins: an exploratory choice cuts the traces of the choices before it
+        trace = torch.where(take(greedy)[:, None], ring["trace"], 0.0)
+        # replacing traces: e(s, .) = 0, then e(s, a) = 1 in the next ring slot
+        sa, state_row = take(idx), take(idx - child)
+        trace = trace.masked_fill(ring["row"] == state_row[:, None], 0.0)
+        slot = take(rows["ptr"])[:, None]
+        new = {
+            "index": ring["index"].scatter(1, slot, sa[:, None]),
+            "row": ring["row"].scatter(1, slot, state_row[:, None]),
+        }
+        trace = trace.scatter(1, slot, 1.0)
+        # Q <- Q + alpha delta e (same-step contributions: trace-weighted mean)
+        on = valid.view(-1, 1)
+        den = trace if pair is not None else torch.where(on, trace, 0.0)
+        self._add(new["index"], take(delta)[:, None] * trace, den, alpha)
+        # e <- gamma^tau lambda e
+        new["trace"] = trace * (take(discount) * self.lam)[:, None]
+        ptr = (slot[:, 0] + 1) % k
+        if pair is not None:
+            for key, value in new.items():
+                rows[key].view(-1, k).index_copy_(0, pair, value)
+            rows["ptr"].view(-1).index_copy_(0, pair, ptr)
+            return
+        for key, value in new.items():
+            rows[key] = torch.where(on, value, ring[key]).view_as(rows[key])
+        rows["ptr"] = torch.where(valid, ptr.view_as(valid), rows["ptr"])
 
     def _add(self, index, num, den, alpha: float) -> None:
         """``Q[i] += alpha * sum(num) / max(1, sum(den))`` over the entries per index ``i``."""

@@ -69,6 +69,11 @@ class RVIQLearner(TabularLearner):
         self.Q = self.completion_bank(init)
         self.attach_heads(Q=self.Q)
         self.n_entries = self.Q.total
+        self._root_width = int(graph.node_n_children[graph.root])  # (read once, on the CPU)
+        if reference_state is not None:  # (made once, moved with the module: no host copy)
+            self.register_buffer(
+                "reference_index", torch.tensor(reference_state), persistent=False
+            )
         q_sum = torch.as_tensor(init, dtype=torch.float64) * self.n_entries  # (or per learner)
         self.register_buffer("q_sum", q_sum.expand(n_learners).clone())
 
@@ -82,9 +87,9 @@ class RVIQLearner(TabularLearner):
         if self.reference_state is None:
             return (self.q_sum / self.n_entries).float()
         root = self.layout.inst_table[0]
-        width = int(self.graph.node_n_children[self.graph.root])
+        width = self._root_width
         learners = torch.arange(self.n_learners, device=self.q_sum.device)
-        idx = self.Q.row_index(learners, root, torch.tensor(self.reference_state), width)
+        idx = self.Q.row_index(learners, root, self.reference_index, width)
         return self.Q.read(idx).amax(-1)
 
     def evaluate(self, ctx: StepContext) -> None:

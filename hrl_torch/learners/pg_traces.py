@@ -1,0 +1,98 @@
+"""Line 16 of Algorithm 3 over the eligibility rings of ``HPGRLLearner`` (``pg.py``).
+
+Static shapes (off the CPU): every (row, depth) pair's ring is read every step and the pairs
+not selected (or the ring entries past a pair's count) weigh 0, so a step reads nothing back
+to the host (docs/design.md, "Any device"). Each parameter still receives its nonzero terms in
+the order the compacted rows give them (ring-entry order), so the sums are the same as the
+CPU's compacted path.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from hrl_torch.ops import lookup
+
+
+def _weights(learner, count, reward, filled, cell) -> torch.Tensor:
+    """``w [n, K + 1]`` (float64) of the ring entries of ``n`` pairs (``reward``: their rings).
+
+    Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).
+    At the renewal: ``w_n = sum_{k >= n} beta^(k - n) r_k - b``, the (discounted)
+    reward-to-go of Equation 5.2 less the baseline of the pair's (learner, group) ``cell``.
+    """
+    cfg = learner.config
+    beta = cfg.beta
+    slot = torch.arange(reward.shape[1], device=count.device)
+    reward = reward.double() * filled
+    if cfg.online:
+        last = reward.gather(1, (count - 1).clamp_min(0)[:, None])
+        weight = last * beta ** (count[:, None] - 1 - slot).clamp_min(0).double()
+    elif beta == 1.0:
+        weight = reward.flip(1).cumsum(1).flip(1)
+    else:
+        scale = beta ** slot.double()
+        weight = (reward * scale).flip(1).cumsum(1).flip(1) / scale
+    if cfg.baseline:
+        weight = weight - baseline(learner, cell, weight, filled)
+    return weight
+
+
+def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
+    """``theta += alpha * sum_n w_n g_n`` over the ring entries of the pairs ``pairs [B, S]``.
+
+    Frozen: the same sum (without ``alpha``) into ``grad_sum``. Off the CPU (or with
+    ``learner.static_rows``) every ring is read, with static shapes; on the CPU only the
+    selected pairs' filled entries (``nonzero``: a host read, cheap there). Same sums.
+    """
+    if learner.static(pairs.device):
+        _apply_static(learner, rows, pairs, alpha, cell)
+        return
+    k1 = learner.config.trace_len + 1
+    pair = pairs.view(-1).nonzero().squeeze(1)  # flat (row, depth) ids
+    if pair.numel() == 0:
+        return
+    count = lookup(rows["count"].view(-1), pair)
+    filled = torch.arange(k1, device=pair.device) < count[:, None]
+    reward = lookup(rows["reward"].view(-1, k1), pair)
+    weight = _weights(learner, count, reward, filled, lookup(cell.view(-1), pair))
+    sel = filled.nonzero()
+    entry = pair[sel[:, 0]] * k1 + sel[:, 1]  # flat ring-entry ids
+    index = lookup(rows["index"].view(-1, learner.width), entry)
+    value = lookup(rows["value"].view(-1, learner.width), entry)
+    w = weight[sel[:, 0], sel[:, 1]].float()
+    _add(learner, index.reshape(-1), (w if learner.config.frozen else alpha * w)[:, None] * value)
+
+
+def _apply_static(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
+    """``apply_traces`` over every ring entry: 0 outside the selected pairs' filled ones."""
+    k1 = learner.config.trace_len + 1
+    count = rows["count"].view(-1)
+    filled = (torch.arange(k1, device=count.device) < count[:, None]) & pairs.view(-1, 1)
+    weight = _weights(learner, count, rows["reward"].view(-1, k1), filled, cell.reshape(-1))
+    w = torch.where(filled, weight, 0.0).float()
+    # (an entry past its pair's count holds a stale index in range, ``update`` clamps what it
+    # writes, and a finite value: it adds 0)
+    scaled = w if learner.config.frozen else alpha * w
+    _add(learner, rows["index"].view(-1), scaled[..., None] * rows["value"].view(*w.shape, -1))
+
+
+def _add(learner, index: torch.Tensor, step: torch.Tensor) -> None:
+    target = learner.grad_sum if learner.config.frozen else learner.theta
+    target.index_add_(0, index, step.reshape(-1))
+    target[-1:].zero_()  # (the sentinel; no tensor from host data)
+
+
+def baseline(learner, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tensor):
+    """``b`` of each pair's ``cell`` ``[n, 1]``; then ``b += rate (mean R_n - b)``.
+
+    The mean is over the filled entries of the pairs that end now (others add 0).
+    """
+    b = learner.reward_to_go_mean.view(-1)
+    used = b[cell][:, None].double()
+    sums = torch.zeros_like(b, dtype=torch.float64).index_add_(0, cell, (togo * filled).sum(1))
+    counts = torch.zeros_like(sums).index_add_(0, cell, filled.sum(1).double())
+    seen = counts > 0
+    mean = (sums / counts.clamp_min(1)).float()
+    b.add_(torch.where(seen, learner.config.baseline * (mean - b), 0.0))
+    return used
