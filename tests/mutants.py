@@ -295,7 +295,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "pg-reward-to-go-forward",
-        "hrl_torch/learners/pg.py",
+        "hrl_torch/learners/pg_traces.py",
         "weight = reward.flip(1).cumsum(1).flip(1)",
         "weight = reward.cumsum(1)",
         "HPGRL weighs each score by the reward before it, not the reward-to-go (Eq. 5.2)",
@@ -315,8 +315,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "q-lambda-traces-not-cut",
         "hrl_torch/learners/q_lambda.py",
-        'trace = torch.where(take(pick("greedy"))[:, None], trace, 0.0)',
-        "trace = trace",
+        'trace = torch.where(take(greedy)[:, None], ring["trace"], 0.0)',
+        'trace = ring["trace"]',
         "Watkins' Q(lambda) keeps traces across exploratory choices",
         (
             SMALL_EXACT,
@@ -420,8 +420,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-timeout-off-by-one",
         "hrl_torch/executor.py",
-        '(f["inv_steps"] >= cfg.max_subtask_steps)',
-        '(f["inv_steps"] > cfg.max_subtask_steps)',
+        '(f["inv_steps"] >= limit)',
+        '(f["inv_steps"] > limit)',
         "the guard lets a subtask run one step more than its limit",
         (EXECUTOR,),
     ),
@@ -517,8 +517,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "policy-heads-scores-dropped",
         "hrl_torch/learners/pg.py",
-        "index[sel, :k], score[sel, :k] = out.index, out.score",
-        "index[sel, :k] = out.index",
+        "score = torch.where(mine[:, None], part[3], score)",
+        "score = score",
         "with several batches of PG heads, their likelihood-ratio terms are lost",
         ("tests/test_custom_head.py",) + PG,
     ),
@@ -598,7 +598,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- the rewritten core
     Mutant(
         "executor-scan-rechooses-first",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "            chose = ~kept & (lv < new)\n",
         "            chose = (lv > old) & (lv < new)\n",
         "a subtask on top that chooses its next child keeps the old child's sums and start state",
@@ -614,7 +614,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-rechoice-restarts-guard",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "            invoked = (lv > old) & (lv <= new)\n",
         "            invoked = (lv >= old) & (lv <= new)\n",
         "a subtask choosing its next child counts as a new invocation (guard and calls restart)",
@@ -704,8 +704,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tables-blend-toward-old",
         "hrl_torch/tables.py",
-        "flat.index_put_((index,), mean + keep * (old - mean))",
-        "flat.index_put_((index,), old + keep * (mean - old))",
+        "flat.put_(index, mean + keep * (old - mean))",
+        "flat.put_(index, old + keep * (mean - old))",
         "table updates keep alpha of the old value instead of 1 - alpha",
         ("tests/test_tables.py", "tests/learners/test_maxq_exact.py"),
     ),
@@ -801,7 +801,7 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "resume-accepts-any-change",
         "hrl_torch/experiment.py",
-        "if key in recorded and key not in CONTINUE_KEYS and value != recorded[key]:",
+        "if key in recorded and key not in CONTINUE_KEYS and not same(value, recorded[key]):",
         "if False:",
         "a resume with other seeds or envs is accepted",
         ("tests/test_resume_cli.py",),
@@ -883,7 +883,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-spans-keep-old-top",
-        "hrl_torch/executor.py",
+        "hrl_torch/descent.py",
         "            kept = lv < old\n",
         "            kept = lv <= old\n",
         "the subtask on top keeps its old child slot after choosing a new child",
@@ -892,8 +892,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-guard-bound-late",
         "hrl_torch/executor.py",
-        "self.guard_quiet = cfg.max_subtask_steps - longest - 1",
-        "self.guard_quiet = cfg.max_subtask_steps - longest + 3",
+        "self.guard_quiet = limit - longest - 1",
+        "self.guard_quiet = limit - longest + 3",
         "the guard is skipped for a few steps too many and cuts a subtask late",
         (EXECUTOR,),
     ),
@@ -908,8 +908,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-compact-children-unscattered",
         "hrl_torch/descent.py",
-        "            return out.index_copy(0, rows, values)",
-        "            return out.index_copy(0, rows.flip(0), values)",
+        "            return out.index_copy_(0, rows, values)",
+        "            return out.index_copy_(0, rows.flip(0), values)",
         "choices made for the choosing rows only are scattered back to the wrong rows",
         (EXECUTOR,),
     ),
