@@ -211,7 +211,7 @@ def test_bad_names_are_refused_in_one_line(tmp_path, capsys):
 def test_a_pg_field_is_swept_in_process(tmp_path):
     grid = {"pg.alpha": [0.01, 0.02], "envs_per_learner": [2], "eval_episodes": [1]}
     rows = run_sweep("taxi-fuel", "hpgrl", grid, 1, out=tmp_path, steps=32, in_process=True)
-    assert [r["status"] for r in rows] == ["finished", "finished"]
+    assert [r["status"] for r in rows] == ["finished", "finished"], rows
     for row in rows:
         hparams = json.loads((tmp_path / row["run_dir"] / "hparams.json").read_text())
         assert hparams["settings"]["pg.alpha"] == row["config"]["pg.alpha"]
