@@ -80,7 +80,9 @@ class AlgoSpec:
 
     def make_learner(self, graph: TaskGraph, n_learners: int) -> Learner:
         """The learner for ``n_learners`` table sets on ``graph``."""
-        positional = (graph, n_learners) if self.pg is None else (graph, n_learners, self.pg)
+        # (the learner gets its own copy of ``pg``: a spec's setting is never shared or changed)
+        pg = None if self.pg is None else dataclasses.replace(self.pg)
+        positional = (graph, n_learners) if pg is None else (graph, n_learners, pg)
         if isinstance(self.learner, Make):
             return self.learner.build(*positional)
         return self.learner(*positional)

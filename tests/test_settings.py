@@ -86,6 +86,14 @@ def test_a_pg_field_is_a_setting():
         with_overrides(spec_of(), {"pg.alpha": 0.01})  # MAXQ-Q has no PG setting
 
 
+def test_a_learner_changing_its_pg_config_leaves_the_spec_alone():
+    spec = spec_of("taxi-fuel", "hpgrl")
+    learner = spec.make_learner(spec.make_graph(), 1)
+    learner.config.trace_len = 2  # (as tests/test_any_device.py does to force an overflow)
+    assert spec.pg.trace_len == 200
+    assert spec.make_learner(spec.make_graph(), 1).config.trace_len == 200
+
+
 def test_any_value_is_accepted_for_a_learner_field():
     alpha = torch.tensor([0.1, 0.2])  # a per-learner value is the learner's to check
     changed = with_overrides(spec_of(), {"learner.alpha": alpha})
