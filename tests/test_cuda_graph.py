@@ -145,3 +145,33 @@ def test_the_cuda_graph_learns_the_eager_tables(domain, algo):
         runs[graph] = _tables(trainer)
     a, b = runs[True], runs[False]
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
+def test_the_compiled_step_learns_the_eager_tables():
+    eager, compiled = _trainer("taxi", "maxq-q"), _trainer("taxi", "maxq-q", compile_step=True)
+    assert compiled.config.compile_step
+    for _ in range(40):
+        eager.train_step()
+        compiled.train_step()
+    assert compiled._graph.failed is None and callable(compiled._graph.graph)
+    assert compiled._graph.backend == "inductor"
+    a, b = _tables(eager), _tables(compiled)
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+    assert torch.equal(eager.executor.stack.inst, compiled.executor.stack.inst)
+    assert compiled.step == eager.step == 80
+
+
+def test_a_step_that_fails_to_compile_runs_eagerly_with_one_warning(monkeypatch):
+    def fails(ops):
+        raise RuntimeError("no compiler here")
+
+    monkeypatch.setattr("hrl_torch.cuda_graph.compile_trace", fails)
+    eager, compiled = _trainer("taxi", "maxq-q"), _trainer("taxi", "maxq-q", compile_step=True)
+    with pytest.warns(UserWarning, match="compiling the recorded step failed") as caught:
+        for _ in range(30):
+            eager.train_step()
+            compiled.train_step()
+    assert len([w for w in caught if "compiling" in str(w.message)]) == 1
+    assert compiled._graph.graph is None
+    a, b = _tables(eager), _tables(compiled)
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
