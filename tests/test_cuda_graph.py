@@ -175,3 +175,13 @@ def test_a_step_that_fails_to_compile_runs_eagerly_with_one_warning(monkeypatch)
     assert compiled._graph.graph is None
     a, b = _tables(eager), _tables(compiled)
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
+def test_compile_step_is_off_unless_asked():
+    parser = cli_parser("0")
+    assert parser.parse_args(["train", "taxi", "--algo", "maxq-q", "--compile-step"]).compile_step
+    assert not parser.parse_args(["train", "taxi", "--algo", "maxq-q"]).compile_step
+    trainer = _trainer("taxi", "maxq-q")
+    assert not trainer.config.compile_step
+    trainer.train_step()
+    assert trainer._graph() is False  # (the eager step: no StepGraph on the CPU by default)
