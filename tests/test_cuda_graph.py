@@ -28,10 +28,8 @@ OTHERS = [("taxi-fuel", "hpgrl"), ("ship-steering", "flat-pg"), ("two-taxi", "co
 
 
 def _trainer(domain, algo, device="cpu", **kw):
-    kw = {"eval_episodes": 0, "check_env": False, **kw}
-    opts = RunOptions(
-        seeds=[0, 1], envs_per_learner=2, progress=False, tensorboard=False, device=device, **kw
-    )
+    kw = {"eval_episodes": 0, "check_env": False, "envs_per_learner": 2, **kw}
+    opts = RunOptions(seeds=[0, 1], progress=False, tensorboard=False, device=device, **kw)
     return build_trainer(registry.get(domain), algo, opts)
 
 
@@ -185,3 +183,17 @@ def test_compile_step_is_off_unless_asked():
     assert not trainer.config.compile_step
     trainer.train_step()
     assert trainer._graph() is False  # (the eager step: no StepGraph on the CPU by default)
+
+
+def test_a_replayed_step_of_1024_rows_learns_the_eager_tables():
+    # (from 1,024 rows the eager CPU step compacts the choosing rows: a replay must not)
+    eager = _trainer("taxi", "maxq-q", envs_per_learner=512)
+    replayed = _trainer("taxi", "maxq-q", envs_per_learner=512)
+    graph = StepGraph(replayed.train_step, replayed, backend="trace")
+    for _ in range(12):
+        eager.train_step()
+        graph()
+    assert graph.failed is None and graph.graph is not None
+    a, b = _tables(eager), _tables(replayed)
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+    assert torch.equal(eager.executor.stack.inst, replayed.executor.stack.inst)
