@@ -146,17 +146,19 @@ def test_the_cuda_graph_learns_the_eager_tables(domain, algo):
 
 
 def test_the_compiled_step_learns_the_eager_tables():
-    eager, compiled = _trainer("taxi", "maxq-q"), _trainer("taxi", "maxq-q", compile_step=True)
-    assert compiled.config.compile_step
-    for _ in range(40):
-        eager.train_step()
-        compiled.train_step()
-    assert compiled._graph.failed is None and callable(compiled._graph.graph)
-    assert compiled._graph.backend == "inductor"
-    a, b = _tables(eager), _tables(compiled)
+    runs = []
+    for compile_step in (False, True):
+        trainer = _trainer(
+            "taxi", "maxq-q", steps=160, eval_every=40, eval_episodes=3, compile_step=compile_step
+        )
+        runs.append((trainer.train(), _tables(trainer), trainer))
+    (eager, a, first), (compiled, b, trainer) = runs
+    assert trainer.config.compile_step and trainer._graph.backend == "inductor"
+    assert trainer._graph.failed is None and callable(trainer._graph.graph)
+    assert len(eager.curve) == 4 and eager.curve == compiled.curve
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
-    assert torch.equal(eager.executor.stack.inst, compiled.executor.stack.inst)
-    assert compiled.step == eager.step == 80
+    assert torch.equal(first.executor.stack.inst, trainer.executor.stack.inst)
+    assert trainer.step == first.step
 
 
 def test_a_step_that_fails_to_compile_runs_eagerly_with_one_warning(monkeypatch):
