@@ -44,6 +44,7 @@ from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.exploration import Constant, EpsilonGreedy, Linear
 
 ALGO = "maxq-q"
+COMPILE_STEP = False  # ``--compile-step``: the batched trainers compile their step (the CPU)
 
 
 # ---------------------------------------------------------------------- machine
@@ -93,6 +94,7 @@ def make_trainer(seeds: list[int], envs: int, eval_episodes: int | None = None):
         eval_episodes=eval_episodes,
         progress=False,
         tensorboard=False,
+        compile_step=COMPILE_STEP,
     )
     return build_trainer(DOMAIN, ALGO, opts)
 
@@ -254,7 +256,7 @@ def cross_check(series: PlainSeries, starts: list[int]) -> float:
 def batched_steps_per_second(n_learners: int, envs: int, seconds: float) -> tuple[float, float]:
     """Training env steps/s (all learners) and ms per batched step, from a fresh population."""
     trainer = make_trainer(list(range(n_learners)), envs, eval_episodes=0)
-    for _ in range(3):
+    for _ in range(5 if COMPILE_STEP else 3):  # (compiled: the capture at step 4 too)
         trainer.train_step()
     n, start = 0, time.perf_counter()
     while n < 3 or time.perf_counter() - start < seconds:
@@ -369,12 +371,20 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-steps", type=int, default=200_000, help="give up after (per learner)")
     p.add_argument("--sps-seconds", type=float, default=None, help="window per throughput row")
     p.add_argument("--json", default=None, help="also write the raw results here")
+    p.add_argument(
+        "--compile-step",
+        action="store_true",
+        help="batched trainers run their step compiled (TrainConfig.compile_step; the "
+        "compile, tens of seconds per trainer, counts in the threshold runs' training time)",
+    )
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print the markdown report."""
     args = parse(argv)
+    global COMPILE_STEP
+    COMPILE_STEP = args.compile_step
     torch.set_num_threads(1)
     quick = args.quick
     n_seeds = args.seeds or (3 if quick else 10)

@@ -273,6 +273,7 @@ def _train_options(args: argparse.Namespace):
         "tensorboard": not args.no_tensorboard,
         "check_leaf_rewards": args.check_leaf_rewards,
         "cuda_graph": not args.no_cuda_graph,
+        "compile_step": args.compile_step,
     }
     try:
         state = load_checkpoint(args.resume) if args.resume else None

@@ -140,6 +140,11 @@ def _train_parser(sub) -> argparse.ArgumentParser:
         help="on a CUDA device, run every training step eagerly (default: replay a CUDA graph)",
     )
     train.add_argument(
+        "--compile-step",
+        action="store_true",
+        help="on the CPU, run the recorded training step compiled by inductor (small batches)",
+    )
+    train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
     _add_set(train)

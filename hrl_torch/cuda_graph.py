@@ -18,7 +18,9 @@ The capture runs after ``warmup`` eager steps. ``backend="cuda"`` captures with
 ``torch.cuda.CUDAGraph``; ``backend="trace"`` (any device: the CPU tests) records the step's
 aten ops with a ``TorchDispatchMode`` and replays them, each op re-run on the tensors the
 recorded one read (state) or on the replayed outputs of earlier ops, the same semantics as a
-graph's replay. A step that cannot be captured falls back to eager steps with a warning.
+graph's replay. ``backend="inductor"`` (the CPU, ``TrainConfig.compile_step``) compiles that
+recorded step into one call (``hrl_torch.trace_compile``). A step that cannot be captured, or
+compiled, falls back to eager steps with a warning.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.learners.base import Learner
 from hrl_torch.rng import BatchRNG
 from hrl_torch.sync_count import DATA_DEPENDENT, HostSyncCounter
+from hrl_torch.trace_compile import compile_trace
 
 _PACKAGES = ("hrl_torch", "envs", "agents", "tensordict")
 
@@ -184,14 +187,15 @@ class StepGraph:
         root: the object holding every piece of the step's state (the trainer).
         warmup: eager steps before the capture (the last two check the integer moves and
             host reads; at least 2).
-        backend: ``"cuda"`` (``torch.cuda.CUDAGraph``) or ``"trace"`` (recorded aten ops).
+        backend: ``"cuda"`` (``torch.cuda.CUDAGraph``), ``"trace"`` (recorded aten ops) or
+            ``"inductor"`` (those ops compiled, ``hrl_torch.trace_compile``).
 
     ``failed`` says why a step could not be captured (then every step runs eagerly).
     """
 
     def __init__(self, step: Callable[[], None], root, warmup: int = 3, backend="cuda") -> None:
-        if backend not in ("cuda", "trace"):
-            raise ValueError(f"backend must be 'cuda' or 'trace', got {backend!r}")
+        if backend not in ("cuda", "trace", "inductor"):
+            raise ValueError(f"backend must be 'cuda', 'trace' or 'inductor', got {backend!r}")
         self.step_fn, self.root, self.backend = step, root, backend
         self.warmup = max(int(warmup), 2)
         self.steps = 0  # steps taken (eager and replayed)
@@ -279,10 +283,20 @@ class StepGraph:
         if _int_delta(ints, after) != self.delta:
             raise RuntimeError("the captured step moved Python integers unlike the warm-up")
         self._int_slots = [(after[p][0], after[p][1], d) for p, d in self.delta.items()]
+        if self.backend == "inductor":
+            self._compile()
+
+    def _compile(self) -> None:
+        """The recorded ops as one compiled call; if compiling fails, eager steps from now."""
+        try:
+            self.graph = compile_trace(self.graph)
+        except Exception as err:  # noqa: BLE001  (any compiler failure: eager, said once)
+            self.graph = None
+            self._refuse(f"compiling the recorded step failed ({type(err).__name__}: {err})")
 
     def _record(self, tensors: dict):
         """Capture one step (it runs: the trace records while running; CUDA replays once)."""
-        if self.backend == "trace":
+        if self.backend != "cuda":
             with _Trace() as trace:
                 self._eager()
                 _copy_back(tensors, walk(self.root)[0])
@@ -296,7 +310,9 @@ class StepGraph:
         return graph
 
     def _replay(self) -> None:
-        if self.backend == "trace":
+        if self.backend == "inductor":
+            self.graph()
+        elif self.backend == "trace":
             replay_trace(self.graph)
         else:
             self.graph.replay()
@@ -321,14 +337,17 @@ def _reachable(root, kind: type):
 def step_for(trainer) -> Callable[[], bool]:
     """What ``Trainer.train_step`` asks first: a ``StepGraph`` of it where it replays.
 
-    Replayed on a CUDA device with ``TrainConfig.cuda_graph`` (``backend="cuda"``), or with
-    a ``graph_backend`` attribute on the trainer (``"trace"``: any device, the CPU tests);
+    Replayed on a CUDA device with ``TrainConfig.cuda_graph`` (``backend="cuda"``), compiled
+    on the CPU with ``TrainConfig.compile_step`` (``"inductor"``), or with a ``graph_backend``
+    attribute on the trainer (``"trace"``: any device, the CPU tests);
     never with the collector or for an agent that does not learn. Else a function that returns
     False (the trainer steps eagerly).
     """
     backend = getattr(trainer, "graph_backend", None)
     if backend is None and trainer.config.cuda_graph and trainer.env.device.type == "cuda":
         backend = "cuda"
+    if backend is None and trainer.config.compile_step and trainer.env.device.type == "cpu":
+        backend = "inductor"
     if backend is None or trainer.collector or not trainer.agent.learn:
         return lambda: False
     return StepGraph(trainer.train_step, trainer, backend=backend)

@@ -268,8 +268,9 @@ class HierarchicalExecutor:
                 self._start_code(f), choice, "greedy" in self.uses
             )
         else:
+            rows = float("inf") if self.static_guard else self.COMPACT_ROWS  # (static: all rows)
             top1, own_greedy = self.descent.level_by_level(
-                f, self._start_code(f), ctx, policy, step, new_features, self.COMPACT_ROWS
+                f, self._start_code(f), ctx, policy, step, new_features, rows
             )
         self._push(f, ctx, top1, own_greedy, new_features)
         self._replace(f)

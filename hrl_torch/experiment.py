@@ -65,6 +65,8 @@ class RunOptions:
             ``hrl_torch.domain.with_overrides``; the options above win over their names.
         cuda_graph: replay the training step as a CUDA graph on a CUDA device
             (``TrainConfig.cuda_graph``; ``--no-cuda-graph`` turns it off).
+        compile_step: on the CPU, run the recorded training step compiled by inductor
+            (``TrainConfig.compile_step``; ``--compile-step``).
     """
 
     seeds: Sequence[int] = (0,)
@@ -86,6 +88,7 @@ class RunOptions:
     check_leaf_rewards: bool = False
     settings: dict = field(default_factory=dict)
     cuda_graph: bool = True
+    compile_step: bool = False
 
     def __post_init__(self) -> None:
         self.seeds = check_seeds(self.seeds)
@@ -208,6 +211,7 @@ def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
         if given[k] is not None
     }
     config = replace(spec.train, progress=opts.progress, cuda_graph=opts.cuda_graph, **changes)
+    config.compile_step = opts.compile_step
     if opts.check_leaf_rewards:
         config.check_leaf_rewards = True
     return config

@@ -26,6 +26,9 @@ class TrainConfig:
             (``hrl_torch.monitor.LeafRewardMonitor``; single-agent training only).
         cuda_graph: on a CUDA device, replay the training step as a captured CUDA graph after
             a few eager steps (``hrl_torch.cuda_graph``; same tables as the eager step).
+        compile_step: on the CPU, record the training step after a few eager steps and run
+            it compiled by inductor (``hrl_torch.trace_compile``; same tables; compiling takes
+            tens of seconds; faster for small batches only, benchmarks/RESULTS.md).
     """
 
     steps: int = 50_000
@@ -39,6 +42,7 @@ class TrainConfig:
     success_key: str = "terminated"
     check_leaf_rewards: bool = False
     cuda_graph: bool = True
+    compile_step: bool = False
 
     def __post_init__(self) -> None:
         lowest = {"steps": 0, "eval_every": 0, "eval_episodes": 0, "eval_max_steps": 1}

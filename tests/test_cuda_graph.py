@@ -28,10 +28,8 @@ OTHERS = [("taxi-fuel", "hpgrl"), ("ship-steering", "flat-pg"), ("two-taxi", "co
 
 
 def _trainer(domain, algo, device="cpu", **kw):
-    kw = {"eval_episodes": 0, "check_env": False, **kw}
-    opts = RunOptions(
-        seeds=[0, 1], envs_per_learner=2, progress=False, tensorboard=False, device=device, **kw
-    )
+    kw = {"eval_episodes": 0, "check_env": False, "envs_per_learner": 2, **kw}
+    opts = RunOptions(seeds=[0, 1], progress=False, tensorboard=False, device=device, **kw)
     return build_trainer(registry.get(domain), algo, opts)
 
 
@@ -145,3 +143,60 @@ def test_the_cuda_graph_learns_the_eager_tables(domain, algo):
         runs[graph] = _tables(trainer)
     a, b = runs[True], runs[False]
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
+def test_the_compiled_step_learns_the_eager_tables():
+    runs = []
+    for compile_step in (False, True):
+        trainer = _trainer(
+            "taxi", "maxq-q", steps=160, eval_every=40, eval_episodes=3, compile_step=compile_step
+        )
+        runs.append((trainer.train(), _tables(trainer), trainer))
+    (eager, a, first), (compiled, b, trainer) = runs
+    assert trainer.config.compile_step and trainer._graph.backend == "inductor"
+    assert trainer._graph.failed is None and callable(trainer._graph.graph)
+    assert len(eager.curve) == 4 and eager.curve == compiled.curve
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+    assert torch.equal(first.executor.stack.inst, trainer.executor.stack.inst)
+    assert trainer.step == first.step
+
+
+def test_a_step_that_fails_to_compile_runs_eagerly_with_one_warning(monkeypatch):
+    def fails(ops):
+        raise RuntimeError("no compiler here")
+
+    monkeypatch.setattr("hrl_torch.cuda_graph.compile_trace", fails)
+    eager, compiled = _trainer("taxi", "maxq-q"), _trainer("taxi", "maxq-q", compile_step=True)
+    with pytest.warns(UserWarning, match="compiling the recorded step failed") as caught:
+        for _ in range(30):
+            eager.train_step()
+            compiled.train_step()
+    assert len([w for w in caught if "compiling" in str(w.message)]) == 1
+    assert compiled._graph.graph is None
+    a, b = _tables(eager), _tables(compiled)
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
+def test_compile_step_is_off_unless_asked():
+    parser = cli_parser("0")
+    assert parser.parse_args(["train", "taxi", "--algo", "maxq-q", "--compile-step"]).compile_step
+    assert not parser.parse_args(["train", "taxi", "--algo", "maxq-q"]).compile_step
+    trainer = _trainer("taxi", "maxq-q")
+    assert not trainer.config.compile_step
+    trainer.train_step()
+    assert trainer._graph() is False  # (the eager step: no StepGraph on the CPU by default)
+
+
+def test_a_replayed_step_of_5120_rows_learns_the_eager_tables():
+    # (at this size the eager CPU step chooses level by level for the choosing rows only,
+    # compacted with a host read: a replayed step must not compact)
+    eager = _trainer("taxi", "maxq-q", envs_per_learner=2560)
+    replayed = _trainer("taxi", "maxq-q", envs_per_learner=2560)
+    graph = StepGraph(replayed.train_step, replayed, backend="trace")
+    for _ in range(12):
+        eager.train_step()
+        graph()
+    assert graph.failed is None and graph.graph is not None
+    a, b = _tables(eager), _tables(replayed)
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+    assert torch.equal(eager.executor.stack.inst, replayed.executor.stack.inst)
