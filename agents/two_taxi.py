@@ -172,6 +172,9 @@ class TeamNavigate(StepCostNavigate):
     def __init__(self, target: int, cost: float) -> None:
         super().__init__(target)
         self.cost = float(cost)
+        # where each location's North, South, East, West lead: a constant moved with the graph
+        moves = MOVES[:, [NORTH, SOUTH, EAST, WEST]].clone()
+        self.register_buffer("moves", moves, persistent=False)
 
     def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
         """-``cost`` per move."""
@@ -180,8 +183,7 @@ class TeamNavigate(StepCostNavigate):
     def child_mask(self, obs: TensorDict) -> torch.Tensor:
         """``[B, 4]``: North, South, East, West where they leave the square."""
         loc = obs["taxi_loc"]
-        moves = MOVES.to(loc.device)[loc][:, [NORTH, SOUTH, EAST, WEST]]
-        return moves != loc[:, None]
+        return self.moves[loc] != loc[:, None]
 
 
 def _root_state(obs: TensorDict) -> torch.Tensor:
@@ -230,25 +232,31 @@ def _get(station: int, text: bool = False) -> Subtask:
     )
 
 
-def _put_mask(obs: TensorDict) -> torch.Tensor:
-    """``[B, 5]``: Navigate(t) for the destination ``t`` away from it; Putdown at it."""
-    status = obs["status"]
-    nav = status[:, None] == torch.arange(N_STATIONS, device=obs.device)[None, :]
-    station_loc = STATION_LOC.to(obs.device)
-    there = obs["taxi_loc"] == station_loc[status.clamp_max(N_STATIONS - 1)]
-    return torch.cat([nav & ~there[:, None], there[:, None]], dim=1)
+class _Put(Subtask):
+    """Put: deliver the carried passenger (``Navigate(t)`` to its destination, ``Putdown``)."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            "Put",
+            [*NAVIGATE, "Putdown"],
+            n_states=PUT_STATES,
+            abstract=_loc_status,
+            terminated=lambda o: o["status"] == EMPTY,
+        )
+        # the stations' locations: a constant moved with the graph
+        self.register_buffer("station_loc", STATION_LOC.clone(), persistent=False)
+
+    def child_mask(self, obs: TensorDict) -> torch.Tensor:
+        """``[B, 5]``: Navigate(t) for the destination ``t`` away from it; Putdown at it."""
+        status = obs["status"]
+        nav = status[:, None] == torch.arange(N_STATIONS, device=obs.device)[None, :]
+        there = obs["taxi_loc"] == self.station_loc[status.clamp_max(N_STATIONS - 1)]
+        return torch.cat([nav & ~there[:, None], there[:, None]], dim=1)
 
 
 def _below_u1(text: bool = False) -> list[Subtask | Primitive]:
     """The U_1 subtasks (but Wait, a primitive) and everything below them (``_get``'s text)."""
-    put = Subtask(
-        "Put",
-        [*NAVIGATE, "Putdown"],
-        n_states=PUT_STATES,
-        abstract=_loc_status,
-        terminated=lambda o: o["status"] == EMPTY,
-        child_mask=_put_mask,
-    )
+    put = _Put()
     return [
         *(_get(s, text) for s in range(N_STATIONS)),
         put,

@@ -33,6 +33,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from hrl_torch.agent import HierarchicalAgent
+from hrl_torch.devices import attributes_of
 from hrl_torch.executor import HierarchicalExecutor
 from hrl_torch.learners.base import Learner
 from hrl_torch.rng import BatchRNG
@@ -57,8 +58,9 @@ def _children(obj):
     if isinstance(obj, StepGraph):  # (the graph itself is no state of the step)
         return []
     package = type(obj).__module__.split(".")[0]
-    if hasattr(obj, "__dict__") and (package in _PACKAGES or isinstance(obj, torch.nn.Module)):
-        return [(obj.__dict__, k, v) for k, v in list(vars(obj).items())]
+    attributes = attributes_of(obj)
+    if attributes is not None and (package in _PACKAGES or isinstance(obj, torch.nn.Module)):
+        return [(attributes, k, v) for k, v in list(attributes.items())]
     return []
 
 
@@ -338,12 +340,12 @@ def step_for(trainer) -> Callable[[], bool]:
     """What ``Trainer.train_step`` asks first: a ``StepGraph`` of it where it replays.
 
     Replayed on a CUDA device with ``TrainConfig.cuda_graph`` (``backend="cuda"``), compiled
-    on the CPU with ``TrainConfig.compile_step`` (``"inductor"``), or with a ``graph_backend``
-    attribute on the trainer (``"trace"``: any device, the CPU tests);
-    never with the collector or for an agent that does not learn. Else a function that returns
-    False (the trainer steps eagerly).
+    on the CPU with ``TrainConfig.compile_step`` (``"inductor"``), or with
+    ``Trainer.graph_backend`` (``"trace"``: any device, the CPU tests); never with the
+    collector or for an agent that does not learn. Else a function that returns False (the
+    trainer steps eagerly).
     """
-    backend = getattr(trainer, "graph_backend", None)
+    backend = trainer.graph_backend
     if backend is None and trainer.config.cuda_graph and trainer.env.device.type == "cuda":
         backend = "cuda"
     if backend is None and trainer.config.compile_step and trainer.env.device.type == "cpu":

@@ -60,6 +60,8 @@ class Trainer:
             per row; a multi-agent env needs ``hrl_torch.multiagent_factory.MultiAgentFactory``).
     """
 
+    graph_backend: str | None = None  #: ``"trace"``: ``StepGraph``'s trace backend (any device)
+
     def __init__(
         self,
         env,
@@ -345,5 +347,3 @@ class LoopCounters:
         self.train_seconds = float(state["train_seconds"])
         self.real_steps = state["real_steps"].clone()
         self.next = {k: int(v) for k, v in state["next"].items()}
-
-

@@ -6,6 +6,8 @@ there with every tensor there; the configurations driven to no host read in a tr
 run a step there, and ``HostSyncCounter`` guards that they stay at 0.
 """
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -207,7 +209,8 @@ def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
 def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
     opts = _options()
     trainer = build_trainer(registry.get("taxi-fuel"), "hpgrl", opts)
-    trainer.learner.config.trace_len = 2  # (rings of 3 entries: the first longer invocation)
+    # (rings of 3 entries: the first longer invocation; a copy: the domain's config is shared)
+    trainer.learner.config = dataclasses.replace(trainer.learner.config, trace_len=2)
     trainer.learner._rows.clear()
     for _ in range(12):
         trainer.train_step()  # (deferred: no raise inside the step)

@@ -25,6 +25,8 @@ from hrl_torch.trainer import Trainer
 NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
 NAMED.append(("four-agv", "cooperative"))
 OTHERS = [("taxi-fuel", "hpgrl"), ("ship-steering", "flat-pg"), ("two-taxi", "com-1")]
+#: the text's two-taxi task: its masks index constant buffers, no tensor made from host data
+OTHERS += [("two-taxi-text", "com-1"), ("two-taxi-text-station", "cooperative")]
 
 
 def _trainer(domain, algo, device="cpu", **kw):

@@ -304,3 +304,33 @@ def test_choosing_for_the_choosing_rows_only_gives_the_same_run(domain, algo, mo
             assert torch.equal(v, some_learner[k]), k
     for k in ("inst", "child", "start_state", "reward", "score_index", "score_value"):
         assert torch.equal(every_stack[k], some_stack[k]), k
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_level_that_chooses_a_child_starts_fresh_sums_at_the_state_it_chose_in(seed):
+    # after act, every level from the old top (a subtask left on top choosing its next child;
+    # the root of a starting row) up to the primitive's parent chose a child this step: its
+    # sums restart and its start state is its abstract state now; the levels below keep theirs
+    graph = random_hierarchy(4, 8, 3, seed)
+    env = random_table_env(8, 3, seed, envs_per_learner=6, seeds=(seed, seed + 1))
+    fields = ("steps", "time", "reward", "start_state")
+    kept_before, rechosen = {}, []
+
+    def check(phase, ex, ctx, td, batch, before):
+        if phase == "observe":  # (what observe left: the levels act may keep)
+            kept_before.update({k: getattr(ex.stack, k).clone() for k in fields})
+            return
+        old_top, top = before[1], ex.stack.top
+        for b in (top >= 1).nonzero().squeeze(1).tolist():
+            chose = range(max(int(old_top[b]), 0), int(top[b]))
+            for k in chose:
+                node = graph.inst_node[ex.stack.inst[b, k]]
+                assert int(ex.stack.start_state[b, k]) == int(ctx.abstract[b, node])
+                assert [float(getattr(ex.stack, f)[b, k]) for f in fields[:3]] == [0, 0, 0]
+            for k in range(int(old_top[b])):
+                for f in fields:
+                    assert getattr(ex.stack, f)[b, k] == kept_before[f][b, k], (f, b, k)
+            rechosen.append(int(old_top[b]) >= 0 and len(chose) > 0)
+
+    run_checked(graph, env, 60, check)
+    assert any(rechosen)  # (subtasks on top did choose their next child)
