@@ -123,6 +123,13 @@ def _train_parser(sub) -> argparse.ArgumentParser:
     train.add_argument("--out", default=None, help="parent folder of run folders (default: runs)")
     train.add_argument("--resume", default=None, help="checkpoint.pt of a run to continue")
     train.add_argument("--device", type=device, default=None, help="cpu (default), cuda, ...")
+    _add_switches(train)
+    _add_set(train)
+    return train
+
+
+def _add_switches(train: argparse.ArgumentParser) -> None:
+    """``train``'s on/off flags: how the steps run and what the run writes."""
     train.add_argument(
         "--collector", action="store_true", help="step through a TorchRL Collector's frames"
     )
@@ -147,8 +154,6 @@ def _train_parser(sub) -> argparse.ArgumentParser:
     train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
-    _add_set(train)
-    return train
 
 
 def _add_set(train: argparse.ArgumentParser) -> None:
