@@ -134,6 +134,8 @@ class TaxiFuelEnv(BatchedEnv):
         "destination": 4,
         "fuel": N_FUEL,
     }
+    transition_tables = staticmethod(transition_tables)  # (a variant's own tables)
+    decode = staticmethod(decode)
 
     def __init__(
         self,
@@ -143,7 +145,7 @@ class TaxiFuelEnv(BatchedEnv):
         device: torch.device | str = "cpu",
     ) -> None:
         super().__init__(seeds, envs_per_learner, N_ACTIONS, max_episode_steps, device)
-        next_state, reward, terminated, starts = transition_tables()
+        next_state, reward, terminated, starts = self.transition_tables()
         self.next_state = next_state.to(self.device)
         self.reward_table = reward.to(self.device)
         self.terminal_table = terminated.to(self.device)
@@ -164,7 +166,7 @@ class TaxiFuelEnv(BatchedEnv):
         return reward, torch.ones_like(reward), terminated
 
     def _observe(self) -> dict[str, torch.Tensor]:
-        fields = decode(self.state)
+        fields = self.decode(self.state)
         fields["out_of_fuel"] = self.out_of_fuel.clone()
         return fields
 

@@ -51,8 +51,8 @@ from envs.taxi_fuel import (
     OUT_OF_FUEL_REWARD,
     PICKUP,
     START_FUEL,
+    TaxiFuelEnv,
 )
-from hrl_torch.env import BatchedEnv
 
 __all__ = ["CAPACITY", "FACTORS", "N_STATES", "TaxiFuelTextEnv", "decode", "encode"]
 
@@ -153,8 +153,10 @@ def reachable() -> torch.Tensor:
     return live | ends
 
 
-class TaxiFuelTextEnv(BatchedEnv):
+class TaxiFuelTextEnv(TaxiFuelEnv):
     """Torch-batched taxi-fuel as the text sets it (see the module docstring).
+
+    ``TaxiFuelEnv`` on this module's tables, observation fields and out-of-fuel rule.
 
     Args:
         seeds: one seed per learner.
@@ -163,13 +165,14 @@ class TaxiFuelTextEnv(BatchedEnv):
         device: where the state lives.
     """
 
-    state_keys = ("state", "out_of_fuel")
     observation_sizes = {
         "observation": N_STATES,
         "taxi_row": 5,
         "taxi_col": 5,
         **FACTORS,
     }
+    transition_tables = staticmethod(transition_tables)
+    decode = staticmethod(decode)
 
     def __init__(
         self,
@@ -178,19 +181,7 @@ class TaxiFuelTextEnv(BatchedEnv):
         max_episode_steps: int | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
-        super().__init__(seeds, envs_per_learner, N_ACTIONS, max_episode_steps, device)
-        next_state, reward, terminated, starts = transition_tables()
-        self.next_state = next_state.to(self.device)
-        self.reward_table = reward.to(self.device)
-        self.terminal_table = terminated.to(self.device)
-        self.starts = starts.to(self.device)
-        self.state = torch.zeros(self.batch_size, dtype=torch.long, device=self.device)
-        self.out_of_fuel = torch.zeros(self.batch_size, dtype=torch.bool, device=self.device)
-
-    def _reset_rows(self, mask: torch.Tensor) -> None:
-        fresh = self.starts[self.rng.integers(len(self.starts))]
-        self.state = torch.where(mask, fresh, self.state)
-        self.out_of_fuel = self.out_of_fuel & ~mask
+        super().__init__(seeds, envs_per_learner, max_episode_steps, device)
 
     def _step_all(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         reward = self.reward_table[self.state, action]
@@ -198,8 +189,3 @@ class TaxiFuelTextEnv(BatchedEnv):
         self.state = self.next_state[self.state, action]
         self.out_of_fuel = terminated & (self.state % FACTORS["fuel_level"] == 0)
         return reward, torch.ones_like(reward), terminated
-
-    def _observe(self) -> dict[str, torch.Tensor]:
-        fields = decode(self.state)
-        fields["out_of_fuel"] = self.out_of_fuel.clone()
-        return fields
