@@ -21,6 +21,7 @@ import argparse
 import json
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import torch
@@ -162,13 +163,13 @@ def main(argv=None) -> int:
         try:
             r = job()
         except Exception as exc:  # (report and go on: one failure must not hide the rest)
-            r = {"error": repr(exc)[:400]}
+            r = {"error": "".join(traceback.format_exception(exc)[-4:])[-1200:]}
         if dev.startswith("cuda"):
             torch.cuda.empty_cache()
         print(json.dumps(r), flush=True)
         results.append(r)
-    Path(a.out).mkdir(parents=True, exist_ok=True)
-    (Path(a.out) / "gpu_check.json").write_text(json.dumps(results, indent=1))
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        (Path(a.out) / "gpu_check.json").write_text(json.dumps(results, indent=1))
     return 0
 
 
