@@ -107,6 +107,7 @@ from envs.four_agv import (
 )
 from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
+from hrl_torch.devices import constant_on
 from hrl_torch.executor import ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import linear_epsilon
@@ -156,7 +157,7 @@ class Navigate(Subtask):
     def child_mask(self, obs: TensorDict) -> torch.Tensor:
         """The moves that move (a turn away from a branch would do nothing)."""
         loc = obs["location"]
-        return _SUCC.to(loc.device)[loc] != loc[:, None]
+        return constant_on(_SUCC, loc.device)[loc] != loc[:, None]
 
     def shaping_reward(self, obs: TensorDict, action, next_obs: TensorDict) -> torch.Tensor:
         """-1 per move: an internal cost (see ``step_cost``)."""

@@ -40,6 +40,7 @@ from torch import nn
 
 from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, out_of_bounds, wrap_degrees
 from hrl_torch.config import Make
+from hrl_torch.devices import constant_on
 from hrl_torch.executor import LEVEL, PRIMITIVE, ExecutorConfig
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import EpsilonGreedy, Greedy
@@ -94,20 +95,20 @@ def to_local(state: torch.Tensor, origin: torch.Tensor, direction: torch.Tensor)
         ``ROTATION[k]`` (wrapped), turning rate unchanged.
     """
     device = state.device
-    cos, sin = _COS.to(device)[direction], _SIN.to(device)[direction]
-    start = LOCAL_START.to(device)[SUBTASK_OF_DIRECTION.to(device)[direction]]
+    cos, sin = constant_on(_COS, device)[direction], constant_on(_SIN, device)[direction]
+    start = constant_on(LOCAL_START, device)[constant_on(SUBTASK_OF_DIRECTION, device)[direction]]
     position = start + _rotate(state[:, :2] - origin, cos, sin)
-    theta = wrap_degrees(state[:, 2] + ROTATION.to(device)[direction])
+    theta = wrap_degrees(state[:, 2] + constant_on(ROTATION, device)[direction])
     return torch.cat([position, theta[:, None], state[:, 3:]], dim=-1)
 
 
 def to_global(local: torch.Tensor, origin: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
     """Inverse of ``to_local``: local ``[B, 4]`` back to global ``[B, 4]``."""
     device = local.device
-    cos, sin = _COS.to(device)[direction], _SIN.to(device)[direction]
-    start = LOCAL_START.to(device)[SUBTASK_OF_DIRECTION.to(device)[direction]]
+    cos, sin = constant_on(_COS, device)[direction], constant_on(_SIN, device)[direction]
+    start = constant_on(LOCAL_START, device)[constant_on(SUBTASK_OF_DIRECTION, device)[direction]]
     position = origin + _rotate(local[:, :2] - start, cos, -sin)
-    theta = wrap_degrees(local[:, 2] - ROTATION.to(device)[direction])
+    theta = wrap_degrees(local[:, 2] - constant_on(ROTATION, device)[direction])
     return torch.cat([position, theta[:, None], local[:, 3:]], dim=-1)
 
 
@@ -147,7 +148,7 @@ def _internal_reward(local: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
 
 def local_success(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
     """``[B]``: within ``GOAL_RADIUS`` of the local goal."""
-    return _at_goal(local[:, :2], LOCAL_GOAL.to(local.device)[subtask])
+    return _at_goal(local[:, :2], constant_on(LOCAL_GOAL, local.device)[subtask])
 
 
 def local_failure(local: torch.Tensor) -> torch.Tensor:
@@ -157,7 +158,7 @@ def local_failure(local: torch.Tensor) -> torch.Tensor:
 
 def orientation_shaping(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
     """``G = exp(-|theta - theta_hat|^2 / 30^2) - 1`` ``[B]``, in (-1, 0]."""
-    return _shaping(local, LOCAL_GOAL.to(local.device)[subtask])
+    return _shaping(local, constant_on(LOCAL_GOAL, local.device)[subtask])
 
 
 def internal_reward(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
@@ -165,13 +166,13 @@ def internal_reward(local: torch.Tensor, subtask: torch.Tensor) -> torch.Tensor:
 
     The env's -1 per step is external (it propagates to the root) and is not included.
     """
-    return _internal_reward(local, LOCAL_GOAL.to(local.device)[subtask])
+    return _internal_reward(local, constant_on(LOCAL_GOAL, local.device)[subtask])
 
 
 def grid_cell(position: torch.Tensor) -> torch.Tensor:
     """``grid_state`` of positions ``[B, 2]`` = (x, y)."""
     cell = torch.floor(position / (SIZE / GRID_CELLS)).long().clamp(0, GRID_CELLS - 1)
-    return (cell * _GRID_STRIDES.to(cell.device)).sum(-1)
+    return (cell * constant_on(_GRID_STRIDES, cell.device)).sum(-1)
 
 
 def grid_state(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -213,10 +214,10 @@ LOW_LEVEL_GUARD = 250
 
 def low_level_reward(subtask: int):
     """Internal reward of a low-level subtask from its local state at ``s'`` (``[R, 4]``)."""
-    goal = LOCAL_GOAL[subtask]
+    goal = LOCAL_GOAL[subtask].clone()
 
     def reward(local: torch.Tensor) -> torch.Tensor:
-        return _internal_reward(local, goal.to(local.device))
+        return _internal_reward(local, constant_on(goal, local.device))
 
     reward.__name__ = f"{SUBTASK_NAMES[subtask]}_internal_reward"
     return reward
@@ -281,7 +282,7 @@ class ShipFrames:
         theta, theta_dot = obs["theta"], obs["theta_dot"]
 
         def compute():
-            turned = wrap_degrees(theta[:, None] + TURNS.to(theta.device))
+            turned = wrap_degrees(theta[:, None] + constant_on(TURNS, theta.device))
             return turned.split(1, dim=1), theta_dot[:, None]
 
         return self._headings((theta, theta_dot), compute)

@@ -70,8 +70,11 @@ class Harmonic:
         if not (self.start > 0 and self.tau > 0):
             raise ValueError(f"Harmonic needs start > 0 and tau > 0, got {self.start}, {self.tau}")
 
-    def __call__(self, step: int) -> float:
-        """Value at ``step``."""
+    def __call__(self, step: int | torch.Tensor) -> float | torch.Tensor:
+        """Value at ``step``; on a device clock (a tensor) a float64 tensor, read nowhere."""
+        if isinstance(step, torch.Tensor):
+            denominator = self.tau + step.clamp(min=0).double()
+            return denominator.new_full((), self.start * self.tau) / denominator  # (exact /)
         return self.start * self.tau / (self.tau + max(step, 0))
 
     def __float__(self) -> float:

@@ -71,6 +71,7 @@ from envs.agv_small import (
 )
 from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
+from hrl_torch.devices import constant_on
 from hrl_torch.experiment import AlgoSpec, DomainSpec
 from hrl_torch.exploration import linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -198,7 +199,7 @@ def flat_graph() -> TaskGraph:
 # ---------------------------------------------------------------------- experiments (Fig. 4.3)
 def weighted_deliveries(td: TensorDict) -> torch.Tensor:
     """``20 * part 1 + 1 * part 2`` delivered by the step: Figure 4.3's throughput measure."""
-    return DELIVERY_WEIGHT.to(td.device)[td["delivered"]]
+    return constant_on(DELIVERY_WEIGHT, td.device)[td["delivered"]]
 
 
 def make_env(seeds, envs_per_learner: int, backend: str = "torch") -> SmallAGVEnv:

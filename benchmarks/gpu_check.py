@@ -159,6 +159,8 @@ def main(argv=None) -> int:
             jobs.append(lambda g=graph: step_speed("ship-steering", "hybrid", *big, dev, g))
         if "threshold" in parts:
             jobs.append(lambda g=graph: to_threshold(*thr, dev, g))
+        if "threshold64" in parts:  # (64 envs per seed: 64,000 rows, under the graph's limit)
+            jobs.append(lambda g=graph: to_threshold(thr[0], 64, 4096, dev, g))
     for job in jobs:
         try:
             r = job()

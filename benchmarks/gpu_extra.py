@@ -10,6 +10,9 @@ Parts (``--parts``, comma-separated):
 * ``kernels``: CUDA kernels per training step (``torch.profiler``), eager and replayed.
 * ``sizes``: ms per step and env steps/s at 1 x 1, 10 x 512, 100 x 2048 and 1000 x 1024 for
   taxi MAXQ-Q, small-AGV HAR and the ship hybrid, graph on and off.
+* ``ship``: the ship hybrid replayed against eager with static and with compacted rings
+  (``pg_traces.STATIC_RING_ENTRIES``).
+* ``breakdown``: the CUDA kernels and aten ops that take a taxi step's time at 1000 x 1024.
 
 Run from the project root with the project on ``PYTHONPATH``; writes ``--out``/gpu_extra.json.
 """
@@ -137,11 +140,11 @@ def kernels(device: str, steps: int = 10) -> list[dict]:
     return out
 
 
-def sizes(device: str, seconds: float) -> list[dict]:
+def sizes(device: str, seconds: float, pairs=None, shapes=None) -> list[dict]:
     """ms per step and env steps/s over the issue's sizes, graph on and off."""
     out = []
-    for domain, algo in NAMED[:3]:
-        for seeds, envs in SIZES:
+    for domain, algo in pairs or NAMED[:3]:
+        for seeds, envs in shapes or SIZES:
             for graph in (True, False):
                 try:
                     r = step_speed(domain, algo, seeds, envs, device, graph, seconds=seconds)
@@ -155,13 +158,68 @@ def sizes(device: str, seconds: float) -> list[dict]:
     return out
 
 
+def ship(device: str, seconds: float) -> list[dict]:
+    """The ship hybrid: replayed (static rings) against eager, static and compacted rings."""
+    from hrl_torch.learners import pg_traces
+
+    out = []
+    default = pg_traces.STATIC_RING_ENTRIES
+    runs = [(s, e, True, default) for s, e in SIZES[:2]]
+    runs += [(s, e, False, default) for s, e in SIZES]
+    runs += [(s, e, False, limit) for s, e in SIZES[:2] for limit in (0, 1 << 62)]
+    for seeds, envs, graph, limit in runs:
+        pg_traces.STATIC_RING_ENTRIES = limit
+        try:
+            r = step_speed("ship-steering", "hybrid", seeds, envs, device, graph, seconds=seconds)
+        except Exception as exc:
+            r = {"seeds": seeds, "envs": envs, "graph": graph, "error": _error(exc)}
+        finally:
+            pg_traces.STATIC_RING_ENTRIES = default
+        r |= {"part": "ship", "static_ring_entries": limit}
+        torch.cuda.empty_cache()
+        print(json.dumps(r), flush=True)
+        out.append(r)
+    return out
+
+
+def breakdown(device: str, steps: int = 5) -> list[dict]:
+    """The CUDA kernels that take the time of a taxi MAXQ-Q step at 1000 x 1024 (eager)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    t = _trainer("taxi", "maxq-q", 1000, 1024, device, False, eval_episodes=0)
+    for _ in range(5):
+        t.train_step()
+    _sync(device)
+    with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+        for _ in range(steps):
+            t.train_step()
+        _sync(device)
+    rows = []
+    for e in prof.key_averages():
+        cuda_us = getattr(e, "device_time_total", 0) or getattr(e, "cuda_time_total", 0)
+        if e.device_type == torch.autograd.DeviceType.CUDA and cuda_us:
+            rows.append((cuda_us / steps / 1e3, e.count / steps, e.key[:90]))
+    rows.sort(reverse=True)
+    ops = []
+    for e in prof.key_averages():
+        cuda_us = getattr(e, "device_time_total", 0) or getattr(e, "cuda_time_total", 0)
+        if e.key.startswith("aten::") and cuda_us:
+            ops.append((cuda_us / steps / 1e3, e.count / steps, e.key))
+    ops.sort(reverse=True)
+    r = {"part": "breakdown", "kernels_ms_per_step": rows[:15], "aten_ms_per_step": ops[:15]}
+    r["kernel_ms_total"] = sum(x[0] for x in rows)
+    print(json.dumps(r), flush=True)
+    return [r]
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--device", default="cuda")
     p.add_argument("--out", default=".")
     p.add_argument("--parts", default="syncs,kernels,sizes,smoke")
     p.add_argument("--seconds", type=float, default=1.5, help="timing per size")
-    p.add_argument("--pairs", default="", help="smoke only these DOMAIN/ALGO,...")
+    p.add_argument("--pairs", default="", help="smoke/sizes: only these DOMAIN/ALGO,...")
+    p.add_argument("--shapes", default="", help="sizes: only these SEEDSxENVS,...")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     pairs = [tuple(x.split("/")) for x in a.pairs.split(",") if x] or None
@@ -175,7 +233,12 @@ def main(argv=None) -> int:
         elif part == "kernels":
             results += kernels(a.device)
         elif part == "sizes":
-            results += sizes(a.device, a.seconds)
+            shapes = [tuple(map(int, x.split("x"))) for x in a.shapes.split(",") if x]
+            results += sizes(a.device, a.seconds, pairs, shapes or None)
+        elif part == "ship":
+            results += ship(a.device, a.seconds)
+        elif part == "breakdown":
+            results += breakdown(a.device)
         else:
             raise SystemExit(f"unknown part {part!r}")
         (Path(a.out) / "gpu_extra.json").write_text(json.dumps(results, indent=1))

@@ -56,6 +56,7 @@ from functools import lru_cache
 
 import torch
 
+from hrl_torch.devices import constant_on
 from hrl_torch.env import BatchedEnv
 
 MAP = (
@@ -192,7 +193,8 @@ def delivery_weight_table() -> torch.Tensor:
 
 def throughput(delivered: torch.Tensor) -> torch.Tensor:
     """Weighted deliveries per 10,000 steps from ``delivered [T, ...]`` recorded over T steps."""
-    return DELIVERY_WEIGHT.to(delivered.device)[delivered].sum(0) * (10_000 / delivered.shape[0])
+    weights = constant_on(DELIVERY_WEIGHT, delivered.device)
+    return weights[delivered].sum(0) * (10_000 / delivered.shape[0])
 
 
 _ROW = torch.tensor([r for r, _ in CELLS])
@@ -207,9 +209,9 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
         "observation": state,
         "location": location,
         "status": state % N_STATUS,
-        "row": _ROW.to(state.device)[location],
-        "col": _COL.to(state.device)[location],
-        "room": ROOM_OF.to(state.device)[location],
+        "row": constant_on(_ROW, state.device)[location],
+        "col": constant_on(_COL, state.device)[location],
+        "room": constant_on(ROOM_OF, state.device)[location],
     }
 
 

@@ -50,6 +50,7 @@ from functools import lru_cache
 import torch
 
 from envs.grid import TableEnv, free_cells, move_table
+from hrl_torch.devices import constant_on
 
 LAYOUT = (
     "#############",
@@ -121,14 +122,14 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
     """Observation fields of state indices (any shape)."""
     state = state.long()
     cell = state // N_GOALS
-    rc = _ROW_COL.to(state.device)[cell]
+    rc = constant_on(_ROW_COL, state.device)[cell]
     return {
         "observation": state,
         "cell": cell,
         "goal": state % N_GOALS,
         "row": rc[..., 0],
         "col": rc[..., 1],
-        "region": _REGION.to(state.device)[cell],
+        "region": constant_on(_REGION, state.device)[cell],
     }
 
 

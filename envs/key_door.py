@@ -46,6 +46,7 @@ from functools import lru_cache
 import torch
 
 from envs.grid import TableEnv, free_cells, move_table
+from hrl_torch.devices import constant_on
 
 LAYOUT = (
     "....#....",
@@ -122,7 +123,7 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
     """Observation fields of state indices (any shape)."""
     state = state.long()
     cell = state // (N_KEY * N_GOALS)
-    rc = _ROW_COL.to(state.device)[cell]
+    rc = constant_on(_ROW_COL, state.device)[cell]
     return {
         "observation": state,
         "cell": cell,

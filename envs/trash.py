@@ -79,6 +79,7 @@ from typing import NamedTuple
 
 import torch
 
+from hrl_torch.devices import constant_on
 from hrl_torch.multiagent_env import MultiAgentBatchedEnv
 from hrl_torch.ops import one_hot_mask
 
@@ -221,7 +222,7 @@ def step_joint(
         (float) and ``dumped [B, n]`` (bool: the robot put a load in the Dump).
     """
     device = location.device
-    can_here = CAN_AT.to(device)[location]  # [B, n], N_CANS where no can
+    can_here = constant_on(CAN_AT, device)[location]  # [B, n], N_CANS where no can
     full_here = torch.cat([cans, torch.zeros_like(cans[:, :1])], 1).gather(1, can_here)
     tries = (action == PICK) & ~carrying & full_here
     claims = one_hot_mask(can_here, N_CANS + 1)[..., :N_CANS] & tries[..., None]  # [B, n, K]
@@ -230,7 +231,7 @@ def step_joint(
     dumped = (action == PUT) & carrying & (location == DUMP)
     reward = DUMP_REWARD * dumped.sum(1) - ACTION_COST * (action != WAIT).sum(1)
     return JointStep(
-        location=MOVES.to(device)[location, action],
+        location=constant_on(MOVES, device)[location, action],
         carrying=(carrying | picked) & ~dumped,
         cans=(cans & ~emptied) | (~cans & refill),
         reward=reward.float(),

@@ -177,3 +177,40 @@ STATIC_SHAPES: bool | None = None
 def static_shapes(device: torch.device) -> bool:
     """Whether a training step on ``device`` keeps static shapes (``STATIC_SHAPES``)."""
     return device.type != "cpu" if STATIC_SHAPES is None else STATIC_SHAPES
+
+
+_CONSTANTS: dict[tuple[int, torch.device], tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def constant_on(table: torch.Tensor, device: torch.device | str) -> torch.Tensor:
+    """A module-level constant ``table`` on ``device``, copied there once and then reused.
+
+    ``TABLE.to(device)`` inside a step copies host memory at every call: a synchronising
+    copy on a GPU, which a CUDA-graph capture refuses. The first call (in an eager warm-up
+    step) makes the copy; later calls return it. Only for tensors that are never changed.
+    """
+    device = torch.device(device)
+    if table.device == device:
+        return table
+    key = (id(table), device)
+    held = _CONSTANTS.get(key)
+    if held is None or held[0] is not table:  # (a new tensor at a reused id)
+        held = _CONSTANTS[key] = (table, table.to(device))
+    return held[1]
+
+
+def from_host(data, dtype: torch.dtype, device: torch.device | str) -> torch.Tensor:
+    """``torch.tensor(data)`` on ``device`` with a copy that does not synchronise.
+
+    On a GPU the data goes through pinned memory and a non-blocking copy (PyTorch's pinned
+    allocator keeps the buffer until the copy has run); on the CPU it is made in place.
+    Not inside a replayed step (a graph would copy the same buffer again): there the numbers
+    must come from the device (``BatchRNG.count_on_device``).
+    """
+    device = torch.device(device)
+    host = torch.tensor(data, dtype=dtype)
+    if device.type == "cpu":
+        return host
+    if device.type == "cuda":
+        host = host.pin_memory()
+    return host.to(device, non_blocking=True)

@@ -15,6 +15,8 @@ from collections.abc import Sequence
 
 import torch
 
+from hrl_torch.devices import from_host
+
 _MASK32 = 0xFFFFFFFF
 SEED_LIMIT = 2**32  # seeds are hashed as 32-bit keys: larger ones would collide, so refused
 
@@ -143,12 +145,12 @@ class BatchRNG:
         row_key = self._row_key if row_key is None else row_key
         bases = [_draw_key(c) for c in range(first, first + k)]
         if extra == 0:
-            keys = torch.tensor(bases, dtype=torch.int64, device=self.device)
+            keys = from_host(bases, torch.int64, self.device)
             return mix32(row_key[None, :] ^ keys[:, None])
         # the column keys are a handful of numbers: hashed in Python, one tensor
         cols = range(extra) if cols is None else cols
         keys = [[_mix32_int(j + base) for j in cols] for base in bases]
-        keys = torch.tensor(keys, dtype=torch.int64, device=self.device)
+        keys = from_host(keys, torch.int64, self.device)
         return mix32(row_key[None, :, None] ^ keys[:, None, :])
 
     def uniform(
@@ -194,7 +196,7 @@ class BatchRNG:
         u = _to_uniform(self._bits(extra, first, k, needed))
         if needed is None:
             return u
-        where = torch.tensor([needed.index(c) for c in listed]).to(u.device)
+        where = from_host([needed.index(c) for c in listed], torch.int64, u.device)
         # (a gather: ``index_select`` along the last dimension copies element by element)
         return u.gather(-1, where.expand(*u.shape[:2], -1)).view(*u.shape[:2], *columns.shape)
 

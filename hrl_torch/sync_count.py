@@ -6,8 +6,11 @@ to the host and has shapes that do not depend on data. ``HostSyncCounter`` is a
 reads (``.item()``, ``bool()``, ``int()``, ``float()`` of a tensor all reach
 ``aten._local_scalar_dense``; ``tolist`` makes one per element), ``nonzero``, ``masked_select``,
 boolean-mask indexing (``index`` with a ``bool`` index), ``unique``, ``repeat_interleave``
-without an output size, copies from a non-CPU device to the CPU. Deterministic, and it needs
-no GPU: on the CPU it counts the same calls a GPU run would synchronise on.
+without an output size, copies from a non-CPU device to the CPU, and copies of host data to a
+device (``"to_device"``: ``TABLE.to(device)``, ``torch.tensor(data, device=...)``, a device
+tensor indexed with CPU indices), which synchronise on a GPU and which a CUDA-graph capture
+refuses. Deterministic, and it needs no GPU: on the CPU (or ``meta``) it counts the same calls a
+GPU run would synchronise on.
 """
 
 from __future__ import annotations
@@ -34,6 +37,8 @@ DATA_DEPENDENT = {
 
 #: tensor methods that read the data on the host with no aten op on the CPU
 _HOST_READS = ("tolist", "numpy")
+#: functions that copy host data to a device with no aten op the mode sees
+_MAKERS = ("tensor", "as_tensor")
 
 
 def _is_bool_index(args) -> bool:
@@ -64,24 +69,53 @@ class HostSyncCounter(TorchDispatchMode):
         if kind is not None:
             return kind
         if func in (aten.index.Tensor, aten.index_put.default, aten.index_put_.default):
-            return "bool-index" if _is_bool_index(args) else None
+            if _is_bool_index(args):
+                return "bool-index"
+            return "to_device" if _host_index(args) else None
         if func is aten.repeat_interleave.Tensor and kwargs.get("output_size") is None:
             return "repeat_interleave"
         if func in (aten._to_copy.default, aten.copy_.default):
-            return _device_to_host(func, args, kwargs)
+            return _device_to_host(func, args, kwargs) or _host_to_device(func, args, kwargs)
         return None
 
     def __enter__(self):
-        # ``tolist`` and ``numpy`` read a CPU tensor without an aten op: count them here
+        # ``tolist`` and ``numpy`` read a CPU tensor without an aten op, ``torch.tensor(data,
+        # device=...)`` copies host data to the device without one: count them here
         self._saved = {name: getattr(torch.Tensor, name) for name in _HOST_READS}
         for name, method in self._saved.items():
             setattr(torch.Tensor, name, self._counting(name, method))
+        self._makers = {name: getattr(torch, name) for name in _MAKERS}
+        for name, make in self._makers.items():
+            setattr(torch, name, self._counting_maker(make))
+        self._new_tensor = torch.Tensor.new_tensor
+        torch.Tensor.new_tensor = self._counting_new_tensor(self._new_tensor)
         return super().__enter__()
 
     def __exit__(self, *exc):
         for name, method in self._saved.items():
             setattr(torch.Tensor, name, method)
+        for name, make in self._makers.items():
+            setattr(torch, name, make)
+        torch.Tensor.new_tensor = self._new_tensor
         return super().__exit__(*exc)
+
+    def _counting_maker(self, make):
+        def counted(data, *args, device=None, **kwargs):
+            from_device = isinstance(data, torch.Tensor) and data.device.type != "cpu"
+            if device is not None and torch.device(device).type != "cpu" and not from_device:
+                self._count("to_device")
+            return make(data, *args, device=device, **kwargs)
+
+        return counted
+
+    def _counting_new_tensor(self, new_tensor):
+        def counted(tensor, data, *args, **kwargs):
+            device = kwargs.get("device") or tensor.device
+            if torch.device(device).type != "cpu":
+                self._count("to_device")
+            return new_tensor(tensor, data, *args, **kwargs)
+
+        return counted
 
     def _counting(self, name, method):
         def counted(tensor, *args, **kwargs):
@@ -112,6 +146,31 @@ def _device_to_host(func, args, kwargs) -> str | None:
     dst, src = args[0], args[1]
     is_read = isinstance(src, torch.Tensor) and src.device.type != "cpu"
     return "to_host" if is_read and dst.device.type == "cpu" else None
+
+
+def _host_to_device(func, args, kwargs) -> str | None:
+    """A copy from the CPU to another device (synchronising on a GPU), else ``None``.
+
+    A non-blocking copy (``devices.from_host``: from pinned memory on a GPU) is not one.
+    """
+    blocking = not (kwargs.get("non_blocking") or (len(args) > 2 and args[2]))
+    if not blocking:
+        return None
+    if func is aten._to_copy.default:
+        src, dst = args[0], kwargs.get("device")
+        moved = dst is not None and torch.device(dst).type != "cpu"
+        return "to_device" if moved and src.device.type == "cpu" else None
+    dst, src = args[0], args[1]
+    is_host = isinstance(src, torch.Tensor) and src.device.type == "cpu"
+    return "to_device" if is_host and dst.device.type != "cpu" else None
+
+
+def _host_index(args) -> bool:
+    """Whether a device tensor is indexed with CPU index tensors (copied over first)."""
+    if args[0].device.type == "cpu":
+        return False
+    indices = args[1] if len(args) > 1 else ()
+    return any(isinstance(i, torch.Tensor) and i.device.type == "cpu" for i in indices or ())
 
 
 def _caller() -> str:

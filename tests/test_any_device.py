@@ -13,6 +13,7 @@ import torch
 
 import agents  # noqa: F401  (registers the domains)
 from hrl_torch import registry
+from hrl_torch.cuda_graph import StepGraph
 from hrl_torch.deferred import raise_pending
 from hrl_torch.executor import BadStepError
 from hrl_torch.experiment import RunOptions, build_trainer
@@ -77,15 +78,6 @@ def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo
     _tensors(trainer, "trainer", found, set())
     assert found, "no tensor found: the walk is broken"
     assert [p for p, dev in found if dev.type != "meta"] == []
-
-
-@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
-def test_a_training_step_runs_on_meta(domain, algo):
-    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
-    for _ in range(3):
-        trainer.train_step()
-    assert trainer.executor.stack.inst.device.type == "meta"
-    assert all(b.device.type == "meta" for b in trainer.learner.buffers())
 
 
 @pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
@@ -216,3 +208,30 @@ def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
         trainer.train_step()  # (deferred: no raise inside the step)
     with pytest.raises(RuntimeError, match=r"selected more than trace_len=2 children"):
         raise_pending(trainer.deferred)
+
+
+@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+def test_every_configuration_is_replayed_on_meta_with_nothing_copied_from_the_host(domain, algo):
+    """The CUDA-graph rules without a GPU: the step replays, reading and copying nothing.
+
+    The graph's device clock and counters are on (as on a GPU); a copy of host data to the
+    device (``TABLE.to(device)`` in a step: a synchronising copy a capture refuses) or a read
+    back would refuse the replay here (``StepGraph.failed``) or raise on ``meta``.
+    """
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    graph = StepGraph(trainer.train_step, trainer, backend="trace")
+    for _ in range(graph.warmup + 2):  # (the warm-up, the capture and one replay)
+        graph()
+    assert graph.failed is None and graph.graph is not None
+    assert trainer.executor.stack.inst.device.type == "meta"
+    assert all(b.device.type == "meta" for b in trainer.learner.buffers())
+
+
+@pytest.mark.parametrize(("domain", "algo"), NAMED[:2])
+def test_an_eager_step_off_the_cpu_copies_nothing_from_the_host(domain, algo):
+    """Eager (no graph), past new blocks of random draws: no blocking copy of host data."""
+    trainer = build_trainer(registry.get(domain), algo, _options("meta"))
+    for _ in range(3):  # (constants copied to the device on first use)
+        trainer.train_step()
+    counter = count_train_step(trainer, 70, stacks=True)  # (BatchRNG.AHEAD = 64)
+    assert dict(counter.where) == {}

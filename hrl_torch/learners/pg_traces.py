@@ -11,7 +11,22 @@ from __future__ import annotations
 
 import torch
 
+from hrl_torch.devices import static_shapes
 from hrl_torch.ops import lookup
+
+#: ring entries (pairs x (trace length + 1)) above which an eager step off the CPU compacts
+#: like the CPU's: the static pass reads every entry of every ring at every step, O(trace
+#: length) per row, where a compaction costs two reads back to the host (benchmarks/RESULTS.md,
+#: "GPU run of 2026-11-27"). A replayed step (``static_rows``) is static at any size.
+STATIC_RING_ENTRIES = 1 << 20
+
+
+def _static(learner, pairs: torch.Tensor) -> bool:
+    """Whether ``apply_traces`` takes the static pass (``STATIC_RING_ENTRIES``)."""
+    if learner.static_rows is not None:
+        return learner.static_rows
+    entries = pairs.numel() * (learner.config.trace_len + 1)
+    return static_shapes(pairs.device) and entries <= STATIC_RING_ENTRIES
 
 
 def _weights(learner, count, reward, filled, cell) -> torch.Tensor:
@@ -41,11 +56,11 @@ def _weights(learner, count, reward, filled, cell) -> torch.Tensor:
 def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
     """``theta += alpha * sum_n w_n g_n`` over the ring entries of the pairs ``pairs [B, S]``.
 
-    Frozen: the same sum (without ``alpha``) into ``grad_sum``. Off the CPU (or with
-    ``learner.static_rows``) every ring is read, with static shapes; on the CPU only the
-    selected pairs' filled entries (``nonzero``: a host read, cheap there). Same sums.
+    Frozen: the same sum (without ``alpha``) into ``grad_sum``. Off the CPU up to
+    ``STATIC_RING_ENTRIES`` (or with ``learner.static_rows``) every ring is read, with static
+    shapes; else only the selected pairs' filled entries (``nonzero``: a host read). Same sums.
     """
-    if learner.static(pairs.device):
+    if _static(learner, pairs):
         _apply_static(learner, rows, pairs, alpha, cell)
         return
     k1 = learner.config.trace_len + 1

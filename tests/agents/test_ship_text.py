@@ -19,6 +19,7 @@ from agents.ship_text import (
 from hrl_torch.agent import HierarchicalAgent
 from hrl_torch.exploration import Greedy
 from hrl_torch.rng import BatchRNG
+from hrl_torch.sync_count import HostSyncCounter
 
 TEXT_ALGOS = ("hybrid-text", "flat-pg-text", "actor-critic-text")
 
@@ -33,6 +34,15 @@ def test_harmonic_step_size_decays_as_assumption_5_3_asks():
     assert sum(alpha(k) ** 2 for k in range(200_000)) < 0.01**2 * 100 * 1.01 + 1e-6
     with pytest.raises(ValueError, match="tau > 0"):
         Harmonic(0.01, 0.0)
+
+
+def test_harmonic_on_a_device_clock_gives_the_float_values_without_a_read():
+    alpha = Harmonic(0.0025, 2e6)
+    for step in (0, 1, 7, 999, 5_000_000):
+        with HostSyncCounter() as counter:
+            value = alpha(torch.tensor(step))
+        assert counter.total == 0
+        assert value.dtype == torch.float64 and float(value) == alpha(step)
 
 
 def test_low_level_rule_is_algorithm_3_as_written():
