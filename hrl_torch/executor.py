@@ -26,7 +26,7 @@ from tensordict import TensorDict
 
 from hrl_torch.descent import Descent, level_spans
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.ops import add_at, discount, entries
+from hrl_torch.ops import add_at, below, discount, entries
 from hrl_torch.stack import TaskStack
 from hrl_torch.transitions import (  # noqa: F401  (LEVEL, PRIMITIVE, Choice, Policy: re-exported)
     LEVEL,
@@ -381,8 +381,8 @@ class HierarchicalExecutor:
         if bad is not None:  # a skipped step aborts the row's whole stack
             cut = cut | (active & bad[:, None])
         if self.interrupt is not None:  # e.g. the tau_any scheme (hrl_torch.multiagent)
-            cut = cut | (self.interrupt(cut.cummax(1).values & active, ended_own) & active)
-        popped = cut.cummax(1).values & active  # a subtask that ends aborts what it called
+            cut = cut | (self.interrupt(below(cut) & active, ended_own) & active)
+        popped = below(cut) & active  # a subtask that ends aborts what it called
         chose = active & ~is_prim  # levels whose child ran this step
         child_ended = popped.roll(-1, 1)  # (the last level never chooses: no wrap-around)
         emit = chose & child_ended

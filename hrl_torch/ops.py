@@ -117,6 +117,15 @@ def add_at(table: torch.Tensor, index: tuple[torch.Tensor, ...], values: torch.T
     table.view(-1).index_add_(0, flat.reshape(-1), values.reshape(-1))
 
 
+def below(cut: torch.Tensor) -> torch.Tensor:
+    """``[B, S]`` bool: level ``k`` or one above it is cut (a prefix or along dim 1).
+
+    ``cut.cummax(1).values``, but a ``cumsum``: CUDA's scan with indices took 9.5 of 36 ms
+    of a taxi step at 10^6 rows on an H200; ``cumsum`` is also 2x faster on the CPU.
+    """
+    return cut.cumsum(1) > 0
+
+
 def one_hot_mask(index: torch.Tensor, n: int) -> torch.Tensor:
     """``one_hot(index, n).bool()`` with no host read (``one_hot`` reads the range back).
 
