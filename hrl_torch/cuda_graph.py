@@ -26,6 +26,7 @@ compiled, falls back to eager steps with a warning.
 from __future__ import annotations
 
 import contextlib
+import gc
 import warnings
 from collections.abc import Callable
 
@@ -305,9 +306,19 @@ class StepGraph:
             return trace.ops
         graph = torch.cuda.CUDAGraph()
         torch.cuda.synchronize()
-        with torch.cuda.graph(graph):
-            self._eager()
-            _copy_back(tensors, walk(self.root)[0])
+        # no garbage collection inside the capture: a dead trainer's graph freed there resets
+        # itself, which a capture refuses (on an H200: "operation not permitted when stream
+        # is capturing (function reset)", then the capture failed)
+        gc.collect()
+        was_enabled = gc.isenabled()
+        gc.disable()
+        try:
+            with torch.cuda.graph(graph):
+                self._eager()
+                _copy_back(tensors, walk(self.root)[0])
+        finally:
+            if was_enabled:
+                gc.enable()
         graph.replay()  # (capturing ran no kernel: this is the captured step's work)
         return graph
 
