@@ -2,9 +2,11 @@
 # Issue 27's whole GPU check in one call of a lent machine (torch + CUDA there, no internet).
 # From the project root, with the wheels of /work/shared/gpu/fetch_wheels.sh carried in .whl/:
 #   benchmarks/gpu_session.sh OUT
-# Phases, each under its own time limit so that one hang loses only itself: the timings of
-# gpu_check.py (the Must-show numbers), host syncs and kernels per step, the sizes grid, then
-# every registered configuration (gpu_extra.py smoke) beside the device tests.
+# Phases, each under its own time limit (T_CHECK, T_K, T_SHIP, T_SIZES, T_TESTS, T_SMOKE) so
+# that one hang loses only itself: the timings of gpu_check.py (the Must-show numbers), host
+# syncs and kernels per step, the ship's ring passes and where a taxi step's time goes, more
+# sizes, then every registered configuration (gpu_extra.py smoke) beside the device tests.
+# About 10 minutes in all: with a machine's start, most of a 15-minute lease.
 # Everything printed goes to OUT/log.txt; each part writes its JSON under OUT.
 set -u
 out=${1:-gpu_out}
@@ -28,12 +30,16 @@ phase() {  # phase SECONDS NAME COMMAND...
   timeout "$limit" "$@" 2>&1 | tee -a "$log"
   echo "== $name exit ${PIPESTATUS[0]} ($(date -u +%T))" | tee -a "$log"
 }
-phase "${T_CHECK:-150}" check python3 benchmarks/gpu_check.py --device cuda --out "$out"
-phase "${T_K:-60}" syncs-kernels python3 benchmarks/gpu_extra.py --parts syncs,kernels --out "$out/k"
-phase "${T_SIZES:-100}" sizes python3 benchmarks/gpu_extra.py --parts sizes --seconds 1 --out "$out/sizes"
+x="python3 benchmarks/gpu_extra.py --device cuda --seconds 1"
+phase "${T_CHECK:-120}" check python3 benchmarks/gpu_check.py --device cuda \
+  --parts equal,taxi1,taxi,threshold,threshold64 --out "$out"
+phase "${T_K:-60}" syncs-kernels $x --parts syncs,kernels --out "$out/k"
+phase "${T_SHIP:-70}" ship-breakdown $x --parts ship,breakdown --out "$out/sizes"
+phase "${T_SIZES:-60}" sizes $x --parts sizes --pairs taxi/maxq-q,small-agv/har \
+  --shapes 10x512,100x2048 --out "$out/sizes"
 # correctness, side by side (timings no longer matter)
-timeout "${T_TESTS:-120}" python3 -m pytest -q -rf -p no:cacheprovider -n 4 tests/test_device.py \
+timeout "${T_TESTS:-150}" python3 -m pytest -q -rf -p no:cacheprovider -n 4 tests/test_device.py \
   tests/test_cuda_graph.py tests/test_any_device.py >"$out/pytest.txt" 2>&1 &
-phase "${T_SMOKE:-120}" smoke python3 benchmarks/gpu_extra.py --parts smoke --out "$out/smoke"
+phase "${T_SMOKE:-150}" smoke python3 benchmarks/gpu_extra.py --parts smoke --out "$out/smoke"
 wait
 tail -5 "$out/pytest.txt" | tee -a "$log"
