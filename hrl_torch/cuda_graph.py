@@ -353,13 +353,29 @@ def _reachable(root, kind: type):
 #: pass over every ring (``pg_traces.STATIC_RING_ENTRIES``). ``Trainer.graph_backend`` and
 #: ``compile_step`` are not limited.
 CUDA_GRAPH_MAX_ROWS = 1 << 16
+#: PG ring entries (``pg_traces.ring_entries``) from which a CUDA step is not captured: a
+#: replay reads every entry at every step, about 16 ns each on an H200 (the ship hybrid:
+#: 1.3M entries at 10 x 512 replayed in 21.7 ms against 24.1 eager and compacted; 51M at
+#: 100 x 2048, 817 ms static against 45.8 compacted)
+CUDA_GRAPH_MAX_RING_ENTRIES = 1 << 21
+
+
+def _replay_pays(trainer) -> bool:
+    """Whether a CUDA graph of ``trainer``'s step is worth capturing (the limits above)."""
+    from hrl_torch.learners.pg import HPGRLLearner
+    from hrl_torch.learners.pg_traces import ring_entries
+
+    rows = trainer.rows.numel()
+    pg = [m for m in trainer.learner.modules() if isinstance(m, HPGRLLearner)]
+    rings = max((ring_entries(m, rows) for m in pg), default=0)
+    return rows < CUDA_GRAPH_MAX_ROWS and rings < CUDA_GRAPH_MAX_RING_ENTRIES
 
 
 def step_for(trainer) -> Callable[[], bool]:
     """What ``Trainer.train_step`` asks first: a ``StepGraph`` of it where it replays.
 
     Replayed on a CUDA device with ``TrainConfig.cuda_graph`` (``backend="cuda"``) below
-    ``CUDA_GRAPH_MAX_ROWS`` batch rows, compiled
+    ``CUDA_GRAPH_MAX_ROWS`` batch rows and ``CUDA_GRAPH_MAX_RING_ENTRIES``, compiled
     on the CPU with ``TrainConfig.compile_step`` (``"inductor"``), or with
     ``Trainer.graph_backend`` (``"trace"``: any device, the CPU tests); never with the
     collector or for an agent that does not learn. Else a function that returns False (the
@@ -368,7 +384,7 @@ def step_for(trainer) -> Callable[[], bool]:
     backend = trainer.graph_backend
     on_cuda = trainer.env.device.type == "cuda"
     if backend is None and trainer.config.cuda_graph and on_cuda:
-        backend = "cuda" if trainer.rows.numel() < CUDA_GRAPH_MAX_ROWS else None
+        backend = "cuda" if _replay_pays(trainer) else None
     if backend is None and trainer.config.compile_step and trainer.env.device.type == "cpu":
         backend = "inductor"
     if backend is None or trainer.collector or not trainer.agent.learn:

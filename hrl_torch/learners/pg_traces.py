@@ -21,6 +21,11 @@ from hrl_torch.ops import lookup
 STATIC_RING_ENTRIES = 1 << 20
 
 
+def ring_entries(learner, rows: int) -> int:
+    """Ring entries the static pass reads per step for ``rows`` batch rows."""
+    return rows * len(learner.depths) * (learner.config.trace_len + 1)
+
+
 def _static(learner, pairs: torch.Tensor) -> bool:
     """Whether ``apply_traces`` takes the static pass (``STATIC_RING_ENTRIES``)."""
     if learner.static_rows is not None:
