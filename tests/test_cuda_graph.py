@@ -202,3 +202,13 @@ def test_a_replayed_step_of_5120_rows_learns_the_eager_tables():
     a, b = _tables(eager), _tables(replayed)
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
     assert torch.equal(eager.executor.stack.inst, replayed.executor.stack.inst)
+
+
+def test_a_cuda_graph_is_captured_only_where_it_pays():
+    from hrl_torch.cuda_graph import _replay_pays
+
+    assert _replay_pays(_trainer("taxi", "maxq-q"))
+    assert not _replay_pays(_trainer("taxi", "maxq-q", envs_per_learner=32768))  # 65,536 rows
+    # the ship's rings: rows x 251 entries, under 2^21 with 8,192 rows, over with 8,356
+    assert _replay_pays(_trainer("ship-steering", "hybrid", envs_per_learner=4096))
+    assert not _replay_pays(_trainer("ship-steering", "hybrid", envs_per_learner=4178))
