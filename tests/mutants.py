@@ -92,7 +92,7 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-no-abort",
         "hrl_torch/executor.py",
-        "popped = cut.cummax(1).values & active",
+        "popped = below(cut) & active",
         "popped = cut & active",
         "a terminating subtask does not abort the subtasks it called",
         ("tests/test_executor.py",),
