@@ -38,6 +38,7 @@ from hrl_torch.transitions import (  # noqa: F401  (LEVEL, PRIMITIVE, Choice, Po
     SelectsRows,
     TransitionWriter,
     as_choice,
+    is_kind,
 )
 
 
@@ -262,7 +263,7 @@ class HierarchicalExecutor:
             # rows whose stack ends above a level where one can start (all rows: static shapes)
             low = (f["top"] < self._memory_depth)[:, None, None]
             new_features = torch.where(low, g.start_features(ctx.obs, ctx.features), ctx.features)
-        choice = policy.choose_all(ctx, step) if isinstance(policy, ChoosesAll) else None
+        choice = policy.choose_all(ctx, step) if is_kind(policy, ChoosesAll) else None
         if choice is not None:
             top1, own_greedy = self.descent.follow(
                 self._start_code(f), choice, "greedy" in self.uses
@@ -306,7 +307,7 @@ class HierarchicalExecutor:
         # the levels' roles, looked up by (old top, new top); -1 on a row that starts: its
         # root is fresh too
         span = f["top"] * (self.depth + 1) + torch.take(self._span_code_1, top1)
-        kept, chose, invoked, fresh = self._spans.index_select(0, span).unbind(1)
+        kept, chose, invoked, fresh = self._spans.index_select(1, span).unbind(0)
         f["inst"] = g.path_inst_1.index_select(0, top1)
         f["node"] = node = g.path_node_1.index_select(0, top1)
         f["top"] = torch.take(g.inst_depth_1, top1)
