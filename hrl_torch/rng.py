@@ -60,6 +60,11 @@ def _bits32(x: torch.Tensor) -> torch.Tensor:
     return (x - ((x >> 31) << 32)).to(torch.int32)
 
 
+def _signed32(value: int) -> int:
+    """A 32-bit value as the int32 holding its bits (``_bits32`` of one number)."""
+    return value - (1 << 32) if value >= 1 << 31 else value
+
+
 def _lsr16(x: torch.Tensor) -> torch.Tensor:
     """``x >> 16`` of int32 bit patterns read as unsigned (a logical shift)."""
     return (x >> 16).bitwise_and_(0xFFFF)
@@ -174,14 +179,14 @@ class BatchRNG:
         if rows is not None:
             row_key = row_key.index_select(0, rows)
         bases = [_draw_key(c) for c in range(first, first + k)]
+        int32 = dict(dtype=torch.int32, device=self.device)
         if extra == 0:
-            keys = _bits32(torch.tensor(bases, dtype=torch.int64)).to(self.device)
+            keys = torch.tensor([_signed32(b) for b in bases], **int32)
             return mix32_bits(row_key[None, :] ^ keys[:, None])
         # the column keys are a handful of numbers: hashed in Python, one tensor
         cols = range(extra) if cols is None else cols
-        keys = [[_mix32_int(j + base) for j in cols] for base in bases]
-        keys = _bits32(torch.tensor(keys, dtype=torch.int64)).to(self.device)
-        return mix32_bits(row_key[None, :, None] ^ keys[:, None, :])
+        keys = [[_signed32(_mix32_int(j + base)) for j in cols] for base in bases]
+        return mix32_bits(row_key[None, :, None] ^ torch.tensor(keys, **int32)[:, None, :])
 
     def _row_key32(self) -> torch.Tensor:
         """The row keys as int32 bit patterns (``_bits32``), kept while the keys are."""
