@@ -228,6 +228,7 @@ class EvalEpisodes:
         }
         self.all = {k: v.clone() for k, v in self.now.items()}
         self.live = torch.arange(batch_size, device=device)
+        self.alive = batch_size  # rows of ``now`` still playing
 
     def _save(self) -> None:
         for k, v in self.now.items():
@@ -236,23 +237,32 @@ class EvalEpisodes:
     def add(self, td, reward: torch.Tensor, success_key: str) -> int:
         """Account one env step of the current rows; how many are still playing.
 
-        ``td``: the step (a TensorDict or its ``entries``).
+        ``td``: the step (a TensorDict or its ``entries``). (A step where no episode ends only
+        adds to the returns and lengths: success and truncation need an end.)
         """
         now, playing = self.now, ~self.now["finished"]
         now["return"] += reward * playing
         now["length"].add_(playing)
+        ended = td["terminated"] | td["truncated"]
+        if not bool(ended.any()):
+            return self.alive
         now["success"] |= succeeded(td, success_key) & playing
         now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
-        now["finished"] |= td["terminated"] | td["truncated"]
-        return playing.shape[0] - int(now["finished"].sum())
+        now["finished"] |= ended
+        self.alive = playing.shape[0] - int(now["finished"].sum())
+        return self.alive
 
     def record_root_decisions(self, executor, graph: TaskGraph) -> None:
         """After ``act``: the root's new child in each row still playing.
 
-        The first ``MAX_DECISIONS`` are kept, in order.
+        The first ``MAX_DECISIONS`` are kept, in order. (A step where no root chooses, e.g.
+        while every row loops inside a subtask, writes nothing: the evaluation reads the
+        device every step anyway, for the count of rows still playing.)
         """
         now = self.now
         new = executor.invoked[:, 1] & ~now["finished"]
+        if not bool(new.any()):
+            return
         child = torch.take(graph.inst_node, executor.stack.inst[:, 1].clamp_min(0))
         count = now["n_decisions"]
         slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
@@ -266,6 +276,7 @@ class EvalEpisodes:
         self._save()
         self.now = {k: v[keep] for k, v in self.now.items()}
         self.live = self.live[keep]
+        self.alive = int((~self.now["finished"]).sum())
 
     def records(self, start: TensorDict, seeds, n: int) -> TensorDict:
         """Every row's record (see ``Trainer.evaluate_episodes``); ``n`` episodes per seed."""
