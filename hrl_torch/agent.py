@@ -153,6 +153,7 @@ class HierarchicalAgent:
             score_width=0 if evaluate else learner.score_width,
             uses=learner.uses if uses is None else uses,
             count_stats=learn,  # (nobody reads an evaluation's subtask statistics)
+            sums=self.transitions,  # (nor its reward sums, without transitions)
         )
         self.rows = self.executor.learner
         self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}

@@ -15,7 +15,7 @@ from dataclasses import replace
 import torch
 
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.transitions import Choice, SelectsRows, as_choice
+from hrl_torch.transitions import Choice, SelectsRows, as_choice, is_kind
 
 
 class Descent:
@@ -40,6 +40,9 @@ class Descent:
         self._leaf_codes = torch.arange(ic, codes, **long).expand(self.batch_size, -1)
         self._code_base = rows * codes
         self._greedy_base = rows[:, None] * (ic + 1)
+        self._every_row = torch.ones(batch_size, dtype=torch.bool, device=device)
+        # the depth at which each instance + 1 chooses (-1: a primitive or none)
+        self._chooses_at_1 = torch.where(g.inst_composite_1, g.inst_depth_1, -1)
 
     def follow(self, code: torch.Tensor, choice: Choice, greedy: bool = True):
         """Follow the choices of every choosing instance ``[B, Ic]`` down to a primitive.
@@ -61,7 +64,9 @@ class Descent:
         own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))
         return top1, own
 
-    def level_by_level(self, f, code, ctx, policy, step, new_features=None, compact_rows=1024):
+    def level_by_level(
+        self, f, code, ctx, policy, step, new_features=None, compact_rows=1024, greedy=True
+    ):
         """``follow`` with the policy's ``select`` asked once per level (any policy).
 
         The choice of the instance at depth ``d`` reads the row's random numbers of level
@@ -70,60 +75,71 @@ class Descent:
         (``graph.start_features``), which the rows whose instance at ``d`` was pushed in this
         act choose from. From ``compact_rows`` rows on (CPU) a policy with ``select_rows``
         chooses for the rows that choose at a level only (the same choices, fewer values).
-        ``f``: the stack's fields (their scores and continuous actions are updated).
+        ``f``: the stack's fields (their scores and continuous actions are updated). Returns
+        what ``follow`` does (the greedy flags only with ``greedy``).
         """
         g = self.graph
         ic = g.n_choosers
         # back to instances + 1 (0: none)
         col = torch.where(code < ic, torch.take(g.choosers, code.clamp_max(ic - 1)) + 1, code - ic)
         compact = (
-            isinstance(policy, SelectsRows)
+            is_kind(policy, SelectsRows)
             and self.device.type == "cpu"
             and self.batch_size >= compact_rows
         )
         flags, scores = [], []
         for level in range(self.depth - 1):
-            node = torch.take(g.inst_node_1, col)
-            at_level = torch.take(g.inst_depth_1, col) == level
-            chooses = torch.take(g.inst_composite_1, col) & at_level
+            chooses = torch.take(self._chooses_at_1, col) == level
             seen = ctx
             if new_features is not None:  # rows whose instance at this level started now
                 started = (level > f["top"])[:, None, None]
                 seen = replace(ctx, features=torch.where(started, new_features, ctx.features))
-            if compact:
-                choice, child = self._choose_rows(seen, policy, step, level, col, node, chooses)
+            if compact:  # (``choice`` only where a score or an action must be kept)
+                choice, new_col, (rows, own) = self._choose_rows(
+                    seen, policy, step, level, col, chooses
+                )  # (the other rows count as greedy)
+                flag = self._every_row.index_copy(0, rows, own) if greedy else None
             else:
+                node = torch.take(g.inst_node_1, col)
                 available = self._available_flat(ctx).index_select(0, self._row_base + node)
                 choice = as_choice(
                     policy.select((col - 1).clamp_min(0), seen, available, step, level)
                 )
                 child = torch.take(g.inst_children_1, col * g.max_children + choice.child)
-            if choice.score_index is not None:
+                new_col = torch.where(chooses, child, col)
+                flag = (choice.greedy | ~chooses) if greedy else None
+            if choice is not None and choice.score_index is not None:
                 scores.append((level, chooses, choice))
             if g.action_dim:
-                self._record_action(f, chooses & ~torch.take(g.inst_composite_1, child), choice)
-            col = torch.where(chooses, child, col)
-            flags.append(choice.greedy | ~chooses)
-        flags.append(torch.ones_like(col, dtype=torch.bool))
-        own = torch.stack(flags, 1)
+                self._record_action(f, chooses & ~torch.take(g.inst_composite_1, new_col), choice)
+            col = new_col
+            flags.append(flag)
         if scores:
             self._record_scores(f, scores)
-        return col, own
+        if not greedy:
+            return col, None
+        return col, torch.stack([*flags, torch.ones_like(col, dtype=torch.bool)], 1)
 
-    def _choose_rows(self, ctx, policy, step, level, col, node, chooses):
-        """One level's choices, made for the rows that choose only: ``(choice, child)``.
+    def _choose_rows(self, ctx, policy, step, level, col, chooses):
+        """One level's choices, made for the rows that choose only: ``(choice, col, greedy)``.
 
-        ``choice`` holds every row's values (0, greedy, no score where a row does not
-        choose), ``child`` the chosen instance + 1 of every choosing row.
+        ``col``: each row's instance + 1 after the level (the chosen child where a row
+        chooses); ``greedy``: the choosing rows ``[R]`` and whether each choice is greedy.
+        ``choice`` holds every row's values (0, greedy, no score where a row does not choose)
+        when the policy gave a score or an action (else ``None``: nothing reads it).
         """
         g = self.graph
         rows = chooses.nonzero().squeeze(1)
-        inst1, node = col.index_select(0, rows), node.index_select(0, rows)
+        inst1 = col.index_select(0, rows)
+        node = torch.take(g.inst_node_1, inst1)
         available = self._available_flat(ctx).index_select(0, rows * g.n_nodes + node)
         part = as_choice(
             policy.select_rows((inst1 - 1).clamp_min(0), ctx, available, step, level, rows)
         )
         child = torch.take(g.inst_children_1, inst1 * g.max_children + part.child)
+        new_col = col.index_copy(0, rows, child)  # (one op: the other rows keep theirs)
+        if part.action is None and part.score_index is None:
+            return None, new_col, (rows, part.greedy)
 
         def spread(values: torch.Tensor, fill=0) -> torch.Tensor:
             """``values [R, ...]`` at ``rows`` of a ``[B, ...]`` tensor of ``fill``."""
@@ -135,7 +151,7 @@ class Descent:
             out.action = spread(part.action)
         if part.score_index is not None:
             out.score_index, out.score_value = spread(part.score_index), spread(part.score_value)
-        return out, spread(child)
+        return out, new_col, (rows, part.greedy)
 
     def _available_flat(self, ctx: StepContext) -> torch.Tensor:
         """``ctx.available`` as ``[B * N, A]`` rows (row ``b * N + node``)."""
@@ -166,9 +182,9 @@ class Descent:
         f["score_value"] = torch.where(chose[..., None], value, old_value)
 
     @staticmethod
-    def _record_action(f: dict, pushed: torch.Tensor, choice: Choice) -> None:
+    def _record_action(f: dict, pushed: torch.Tensor, choice: Choice | None) -> None:
         """The action vector of the continuous primitives pushed (``pushed [B]``)."""
-        if choice.action is None:
+        if choice is None or choice.action is None:
             raise GraphError("a continuous primitive was chosen without an action value")
         f["cont_action"] = torch.where(pushed[:, None], choice.action, f["cont_action"])
 
@@ -176,11 +192,13 @@ class Descent:
 def level_spans(depth: int, depth_1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The levels' roles in a push, by old and new top: ``(spans, code)``.
 
-    ``spans[(old + 1) * (D + 1) + new + 1]`` is ``[4, D]``: the levels kept (below the old
+    ``spans[:, (old + 1) * (D + 1) + new + 1]`` is ``[4, D]``: the levels kept (below the old
     top), the ones that chose a child (old top .. new top - 1), the new invocations (above
-    the old top up to the new one) and the fresh ones (either). ``code[top1]`` is
+    the old top up to the new one) and the fresh ones (either). (Roles first: a push's
+    ``index_select(1, ...)`` gives each role as a contiguous ``[B, D]`` mask; a strided one
+    makes a CPU ``where`` about four times slower.) ``code[top1]`` is
     ``depth + 1 + (D + 1)`` of the instance ``top1 - 1``, so that ``old * (D + 1) + code``
-    is the row of ``spans``. (``spans`` is made once per depth: executors for evaluation
+    is the column of ``spans``. (``spans`` is made once per depth: executors for evaluation
     subsets are built often; it is only read.)
     """
     return _spans(depth).to(depth_1.device), depth_1 + 1 + (depth + 1)
@@ -196,4 +214,4 @@ def _spans(depth: int) -> torch.Tensor:
             chose = ~kept & (lv < new)
             invoked = (lv > old) & (lv <= new)
             rows.append(torch.stack([kept, chose, invoked, chose | invoked]))
-    return torch.stack(rows)
+    return torch.stack(rows, 1)

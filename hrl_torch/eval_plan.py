@@ -82,6 +82,7 @@ class EvalPlan(nn.Module):
         self._bases: dict[tuple[int, int], tuple] = {}
         self._child_index: dict[int, list[torch.Tensor]] = {}
         self._penalties: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._by_learner: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}
         self.n_tables = layout.n_tables
 
     @property
@@ -127,13 +128,32 @@ class EvalPlan(nn.Module):
         if per_state is not None:
             blocked, dead, index = per_state
             blocked = self._penalty(blocked, keep=True) if penalty else blocked
-            picked = (t.index_select(0, ctx.table_row) for t in (blocked, dead, index))
-            blocked, dead, index = picked
-            return blocked, dead, index + self.learner_base(ctx.learner, bank.stride, 3)
+            blocked, dead = (t.index_select(0, ctx.table_row) for t in (blocked, dead))
+            return blocked, dead, self._index_at(bank, index, ctx)
         blocked = ~columns(ctx.available, self.node)
         dead = columns(ctx.blocked, self.node) | blocked.all(-1)
         index = self.row_index(bank, ctx.learner, columns(ctx.abstract, self.node))
         return (self._penalty(blocked) if penalty else blocked), dead, index
+
+    def _index_at(self, bank: TableBank, index: torch.Tensor, ctx) -> torch.Tensor:
+        """``index [S, Tc, A]`` (learner 0's, per state) at ``ctx``'s rows, for their learners.
+
+        Up to ``TABULATE_LIMIT`` entries for all learners, the table is made for every
+        (learner, state) once and read at ``learner * S + state``: one ``[B]`` add instead of
+        a ``[B, Tc, A]`` one (the same indices).
+        """
+        n_states = index.shape[0]
+        if bank.n_learners * index.numel() > self.TABULATE_LIMIT:
+            picked = index.index_select(0, ctx.table_row)
+            return picked + self.learner_base(ctx.learner, bank.stride, 3)
+        key = (id(bank), id(index))
+        cached = self._by_learner.get(key)
+        if cached is None or cached[0] is not index:
+            base = torch.arange(bank.n_learners, device=index.device) * bank.stride
+            every = (base[:, None, None, None] + index).view(-1, *index.shape[1:])
+            cached = self._by_learner[key] = (index, every)
+        row = self.learner_base(ctx.learner, n_states, 1) + ctx.table_row
+        return cached[1].index_select(0, row)
 
     def _penalty(self, blocked: torch.Tensor, keep: bool = False) -> torch.Tensor:
         """-inf where ``blocked``, 0 elsewhere; ``keep``: cached (a per-state table)."""

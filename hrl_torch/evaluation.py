@@ -22,6 +22,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from hrl_torch.graph import TaskGraph
+from hrl_torch.ops import entries
 
 __all__ = [
     "MAX_DECISIONS",
@@ -85,17 +86,28 @@ class Evaluator:
 class EpisodicEvaluator(Evaluator):
     """Mean return and success rate of one greedy episode per eval-env row (the default)."""
 
-    def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
-        """Greedy episodes on ``trainer.eval_env``: mean return and success rate ``[P]``."""
-        records = self.episodes(trainer)
+    def evaluate(self, trainer, learners=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Greedy episodes on ``trainer.eval_env``: mean return and success rate ``[P]``.
+
+        ``learners``: only these learners' episodes are played (``episodes``); the others'
+        numbers are NaN.
+        """
+        records = self.episodes(trainer, learners)
         self.last_records = records
         n = trainer.eval_env.envs_per_learner
-        self.last_steps = records["length"].view(-1, n).mean(1)
-        success = records["success"].float().view(-1, n).mean(1)
-        return records["return"].view(-1, n).mean(1), success
+        means = [
+            records["length"].view(-1, n).mean(1),
+            records["success"].float().view(-1, n).mean(1),
+            records["return"].view(-1, n).mean(1),
+        ]
+        if learners is not None:
+            skipped = ~_learner_mask(learners, trainer.P)
+            means = [m.masked_fill(skipped, float("nan")) for m in means]
+        self.last_steps = means[0]
+        return means[2], means[1]
 
     @staticmethod
-    def episodes(trainer) -> TensorDict:
+    def episodes(trainer, learners=None) -> TensorDict:
         """Play one greedy episode per ``trainer.eval_env`` row; one record each (on the CPU).
 
         Every evaluation plays the same episodes (the eval env's and the tie-breaking random
@@ -109,6 +121,11 @@ class EpisodicEvaluator(Evaluator):
         ``eval_max_steps`` ended it), ``start`` (the reset observation) and the root's decisions:
         ``decisions [.., MAX_DECISIONS]`` (the root's children in the order it invoked them,
         node indices, -1 after the last; the first ``MAX_DECISIONS`` only) and ``n_decisions``.
+
+        ``learners`` (indices): play only these learners' episodes (each as in a full
+        evaluation: the other rows are split off after the start, as finished rows are); the
+        other rows' records stay at 0 length, unfinished. An env or agent that cannot split
+        rows (``subset_safe``, ``HierarchicalAgent.subset``) plays them all.
         """
         env, cfg, graph = trainer.eval_env, trainer.config, trainer.graph
         if env is None:
@@ -120,6 +137,11 @@ class EpisodicEvaluator(Evaluator):
         start = env.reset()
         action = agent.start(start)
         episodes = EvalEpisodes(env.batch_size, env.device)
+        if learners is not None and env.subset_safe:  # only these learners' rows play
+            playing = _only(learners, trainer.P, agent, env, action, episodes)
+            if playing is None:  # nothing to play
+                return episodes.records(start, trainer.env.seeds, env.envs_per_learner)
+            agent, env, action = playing
         decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
         finite_only = trainer.executor_config.on_bad_step == "skip"
         bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
@@ -128,7 +150,8 @@ class EpisodicEvaluator(Evaluator):
             if decisions_on:
                 episodes.record_root_decisions(agent.executor, graph)
             td = env.step(action)
-            alive = episodes.add(td, counted_reward(td, finite_only), cfg.success_key)
+            step = entries(td)  # (a plain dict: reading a TensorDict's key costs microseconds)
+            alive = episodes.add(step, counted_reward(step, finite_only), cfg.success_key)
             bar.update(bar.total - alive - bar.n)  # the episodes finished so far
             if alive == 0:
                 break
@@ -205,41 +228,55 @@ class EvalEpisodes:
         }
         self.all = {k: v.clone() for k, v in self.now.items()}
         self.live = torch.arange(batch_size, device=device)
+        self.alive = batch_size  # rows of ``now`` still playing
 
     def _save(self) -> None:
         for k, v in self.now.items():
             self.all[k][self.live] = v
 
-    def add(self, td: TensorDict, reward: torch.Tensor, success_key: str) -> int:
-        """Account one env step of the current rows; how many are still playing."""
+    def add(self, td, reward: torch.Tensor, success_key: str) -> int:
+        """Account one env step of the current rows; how many are still playing.
+
+        ``td``: the step (a TensorDict or its ``entries``). (A step where no episode ends only
+        adds to the returns and lengths: success and truncation need an end.)
+        """
         now, playing = self.now, ~self.now["finished"]
         now["return"] += reward * playing
-        now["length"] += playing.float()
+        now["length"].add_(playing)
+        ended = td["terminated"] | td["truncated"]
+        if not bool(ended.any()):
+            return self.alive
         now["success"] |= succeeded(td, success_key) & playing
         now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
-        now["finished"] |= td["terminated"] | td["truncated"]
-        return int((~now["finished"]).sum())
+        now["finished"] |= ended
+        self.alive = playing.shape[0] - int(now["finished"].sum())
+        return self.alive
 
     def record_root_decisions(self, executor, graph: TaskGraph) -> None:
         """After ``act``: the root's new child in each row still playing.
 
-        The first ``MAX_DECISIONS`` are kept, in order.
+        The first ``MAX_DECISIONS`` are kept, in order. (A step where no root chooses, e.g.
+        while every row loops inside a subtask, writes nothing: the evaluation reads the
+        device every step anyway, for the count of rows still playing.)
         """
         now = self.now
         new = executor.invoked[:, 1] & ~now["finished"]
-        child = graph.inst_node[executor.stack.inst[:, 1].clamp_min(0)]
+        if not bool(new.any()):
+            return
+        child = torch.take(graph.inst_node, executor.stack.inst[:, 1].clamp_min(0))
         count = now["n_decisions"]
         slot = count.clamp_max(MAX_DECISIONS - 1)[:, None]
         keep = new & (count < MAX_DECISIONS)
         kept = torch.where(keep, child, now["decisions"].gather(1, slot)[:, 0])
         now["decisions"].scatter_(1, slot, kept[:, None])
-        count += new.long()
+        count.add_(new)
 
     def compact(self, keep: torch.Tensor) -> None:
         """Step only ``keep`` (indices into the current rows) from now on."""
         self._save()
         self.now = {k: v[keep] for k, v in self.now.items()}
         self.live = self.live[keep]
+        self.alive = int((~self.now["finished"]).sum())
 
     def records(self, start: TensorDict, seeds, n: int) -> TensorDict:
         """Every row's record (see ``Trainer.evaluate_episodes``); ``n`` episodes per seed."""
@@ -255,6 +292,30 @@ class EvalEpisodes:
             "start": start.exclude(*_STEP_FIELDS).cpu(),
         }
         return TensorDict(fields, batch_size=[row.shape[0]])
+
+
+def _only(learners, n_learners: int, agent, env, action, episodes: EvalEpisodes):
+    """``(agent, env, action)`` of the rows of ``learners`` only; ``None``: they hold no row.
+
+    ``episodes`` is compacted to those rows; all stay if the agent cannot split rows.
+    """
+    keep = _learner_mask(learners, n_learners).to(env.device)
+    keep = keep.repeat_interleave(env.envs_per_learner).nonzero().squeeze(1)
+    if keep.numel() == 0:
+        return None
+    smaller = agent.subset(keep)
+    if smaller is None:
+        return agent, env, action
+    episodes.compact(keep)
+    return smaller, env.subset(keep), action.index_select(0, keep)
+
+
+def _learner_mask(learners, n_learners: int) -> torch.Tensor:
+    """``[P]``: True at ``learners`` (indices in ``[0, P)``); a ``ValueError`` otherwise."""
+    index = torch.as_tensor(learners, dtype=torch.long).reshape(-1)
+    if index.numel() and not (0 <= int(index.min()) and int(index.max()) < n_learners):
+        raise ValueError(f"learners must be indices in [0, {n_learners}), got {learners}")
+    return torch.zeros(n_learners, dtype=torch.bool).index_fill_(0, index, True)
 
 
 def eval_line(step: int, tag: str, values: list[float], seconds: float) -> str:

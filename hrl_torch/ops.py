@@ -18,6 +18,23 @@ def lookup(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
 
 
+#: ``take_flat`` gathers with ``index_select`` from this many indices on (on the CPU)
+TAKE_BY_SELECT = 2048
+
+
+def take_flat(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``torch.take(table, index)`` for a contiguous ``table`` and indices in ``[0, numel)``.
+
+    On the CPU ``take`` costs about 2.5x an ``index_select`` of the flat table for many
+    indices (237 against 91 us for ``[5120, 7, 5]`` indices into 179k entries) and 3 us less
+    for a few; from ``TAKE_BY_SELECT`` indices on it is the ``index_select`` (the same
+    values). Unlike ``take``, no negative indices.
+    """
+    if index.numel() < TAKE_BY_SELECT or table.device.type != "cpu" or not table.is_contiguous():
+        return torch.take(table, index)
+    return table.view(-1).index_select(0, index.reshape(-1)).view(index.shape)
+
+
 #: ``argmax_last`` switches to ``max(-1).indices`` from this many elements on (on the CPU)
 ARGMAX_BY_MAX = 256
 

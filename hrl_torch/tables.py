@@ -18,7 +18,7 @@ from torch import nn
 
 from hrl_torch.devices import MovesTensorAttrs
 from hrl_torch.graph import TaskGraph
-from hrl_torch.ops import group_of_rows, lookup
+from hrl_torch.ops import group_of_rows, lookup, take_flat
 from hrl_torch.per_learner import at_entries, check_size, is_per_learner
 
 
@@ -127,7 +127,7 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         else:
             rho = at_entries(1.0 - alpha, index, self.stride, flat.dtype)  # 1 - alpha of each row
         if distinct:
-            old = torch.take(flat, index)
+            old = take_flat(flat, index)
             mean = torch.nan_to_num(target)
             new = mean + rho * (old - mean)  # (the n = 1 case below, op for op)
             flat.put_(index, torch.where(mask, new, old))  # (``put_``: flat, cheaper)

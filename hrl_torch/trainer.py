@@ -217,13 +217,21 @@ class Trainer:
             nxt["ckpt"] = self.step + cfg.checkpoint_every
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def evaluate(self, learners=None) -> tuple[torch.Tensor, torch.Tensor]:
         """The evaluator's two numbers per learner ``[P]`` (episodic: return and success).
 
         (The mean episode length per learner is kept in ``last_eval_steps``, every episode in
-        ``last_eval_records``: see ``evaluate_episodes``.)
+        ``last_eval_records``: see ``evaluate_episodes``.) ``learners``: evaluate only these
+        (indices; the episodic evaluator): theirs are the numbers a full evaluation gives,
+        the others' NaN (e.g. a search for the first step at a threshold skips the learners
+        that reached it).
         """
-        values = self.evaluator.evaluate(self)
+        if learners is None:
+            values = self.evaluator.evaluate(self)
+        elif isinstance(self.evaluator, EpisodicEvaluator):
+            values = self.evaluator.evaluate(self, learners)
+        else:
+            raise ValueError("only the episodic evaluator evaluates some learners (learners=)")
         self.last_eval_records = self.evaluator.last_records
         steps = self.evaluator.last_steps
         self.last_eval_steps = torch.full((self.P,), float("nan")) if steps is None else steps

@@ -332,6 +332,22 @@ class Policy(Protocol):
         ...
 
 
+_KINDS: dict[tuple[type, type], bool] = {}
+
+
+def is_kind(policy, protocol: type) -> bool:
+    """``isinstance(policy, protocol)`` for a runtime-checkable protocol, kept per class.
+
+    (A protocol's ``isinstance`` looks its methods up every call, several microseconds; the
+    executor asks every step. Policies have their methods on their class.)
+    """
+    key = (type(policy), protocol)
+    known = _KINDS.get(key)
+    if known is None:
+        known = _KINDS[key] = isinstance(policy, protocol)
+    return known
+
+
 @runtime_checkable
 class ChoosesAll(Protocol):
     """A policy that can choose for every choosing instance at once."""

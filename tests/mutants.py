@@ -396,8 +396,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-episode-end-not-terminal",
         "hrl_torch/executor.py",
-        "terminal = (own | env_ended) & chose",
-        "terminal = own & chose",
+        "ends = (own | env_ended, ended_own)",
+        "ends = (own, ended_own)",
         "the end of the episode is not terminal for the subtasks on the stack",
         ("tests/test_executor.py", "tests/learners/test_maxq_exact.py"),
     ),
@@ -607,8 +607,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "executor-scan-going-not-updated",
         "hrl_torch/descent.py",
-        "chooses = torch.take(g.inst_composite_1, col) & at_level",
-        "chooses = at_level",
+        "self._chooses_at_1 = torch.where(g.inst_composite_1, g.inst_depth_1, -1)",
+        "self._chooses_at_1 = g.inst_depth_1",
         "the level-by-level descent goes on choosing below the primitive on top",
         ("tests/test_executor.py", "tests/agents/test_ship_hierarchy.py"),
     ),
@@ -940,8 +940,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "plan-per-state-without-learner",
         "hrl_torch/eval_plan.py",
-        "return blocked, dead, index + self.learner_base(ctx.learner, bank.stride, 3)",
-        "return blocked, dead, index",
+        "row = self.learner_base(ctx.learner, n_states, 1) + ctx.table_row",
+        "row = ctx.table_row",
         "on a tabulated graph every learner reads the first learner's tables",
         ("tests/test_population.py", "tests/agents/test_taxi_learning.py"),
     ),
@@ -956,8 +956,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "rng-rows-draw-first-rows",
         "hrl_torch/rng.py",
-        "row_key = self._row_key.index_select(0, rows)",
-        "row_key = self._row_key[: rows.shape[0]]",
+        "row_key = row_key.index_select(0, rows)",
+        "row_key = row_key[: rows.shape[0]]",
         "a draw for some rows reads the first rows' streams",
         ("tests/test_rng.py", EXECUTOR),
     ),

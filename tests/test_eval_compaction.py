@@ -67,3 +67,22 @@ def test_an_env_subset_steps_as_its_rows_did():
         a, b = full.step(action), sub.step(action[rows])
         for key in a.keys():
             assert torch.equal(a[key][rows], b[key]), key
+
+
+@pytest.mark.parametrize("domain,algo", [("taxi", "maxq-q"), ("key-door", "q")])
+def test_evaluating_some_learners_gives_their_numbers_of_a_full_evaluation(domain, algo):
+    opts = RunOptions(seeds=[0, 1, 2], envs_per_learner=16, eval_episodes=30, progress=False)
+    trainer = build_trainer(registry.get(domain), algo, opts)
+    for _ in range(700):
+        trainer.train_step()
+    full = trainer.evaluate()
+    full_steps = trainer.last_eval_steps.clone()
+    some = trainer.evaluate(learners=[0, 2])
+    for a, b in zip(full, some, strict=True):
+        assert torch.equal(a[[0, 2]], b[[0, 2]]) and bool(b[1].isnan())
+    assert torch.equal(full_steps[[0, 2]], trainer.last_eval_steps[[0, 2]])
+    played = trainer.last_eval_records["length"].view(3, 30)
+    assert bool((played[1] == 0).all()) and bool((played[[0, 2]] > 0).all())
+    assert bool(trainer.evaluate(learners=[])[0].isnan().all())
+    with pytest.raises(ValueError, match="learners must be indices"):
+        trainer.evaluate(learners=[3])

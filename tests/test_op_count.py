@@ -59,3 +59,34 @@ def test_ops_per_training_step_stay_within_budget(case):
     counts = ops_per_step(*case)
     assert max(counts) <= BUDGETS[case], f"{case}: {counts} aten ops per step"
     assert min(counts) > 0.5 * BUDGETS[case], "the budget is stale: lower it to the new count"
+
+
+# a greedy evaluation step (no transitions: no sums kept, no transition masks; hrl_torch.executor
+# ``sums``; while every row loops, no root decision to record and no episode end to account):
+# taxi MAXQ-Q, 4 episodes that all run to the time limit
+EVAL_BUDGET = 110  # 104 (145 before the evaluation agents kept no sums)
+
+
+def test_ops_per_greedy_evaluation_step_stay_within_budget(monkeypatch):
+    from hrl_torch.evaluation import EvalEpisodes
+
+    torch.set_num_threads(1)
+    opts = RunOptions(
+        seeds=[0], envs_per_learner=8, eval_episodes=4, progress=False, tensorboard=False
+    )
+    trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
+    for _ in range(100):
+        trainer.train_step()
+    trainer.evaluate()
+    steps, add = [0], EvalEpisodes.add
+
+    def counted(self, *args):
+        steps[0] += 1
+        return add(self, *args)
+
+    monkeypatch.setattr(EvalEpisodes, "add", counted)
+    with OpCounter() as counter:
+        trainer.evaluate()
+    assert steps[0] == 200, "the episodes should run to the time limit (the count is per step)"
+    per_step = counter.count / steps[0]
+    assert EVAL_BUDGET / 2 < per_step <= EVAL_BUDGET, f"{per_step:.1f} aten ops per evaluation step"

@@ -41,6 +41,7 @@ from hrl_torch.exploration import Schedule
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.three_part import ThreePartLearner
+from hrl_torch.ops import take_flat
 
 
 class GainEstimate(nn.Module):
@@ -187,7 +188,7 @@ class RARLearner(TabularLearner):
         value = self.primitive_values(ctx, self.V)
         q_rows = []
         for ids, kids, unavailable, gone, c_part in self.groups(blocked, dead, c):
-            q = torch.take(value, kids) + c_part
+            q = take_flat(value, kids) + c_part
             best = q.masked_fill(unavailable, -torch.inf).amax(-1)
             value.index_copy_(1, ids, best.masked_fill(gone, 0.0))
             q_rows.append(q)

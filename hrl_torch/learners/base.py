@@ -31,7 +31,7 @@ from hrl_torch.exploration import (
 )
 from hrl_torch.graph import StepContext, TaskGraph
 from hrl_torch.heads import attach_table_heads
-from hrl_torch.ops import add_at, at_rows, lookup
+from hrl_torch.ops import add_at, at_rows, lookup, take_flat
 from hrl_torch.per_learner import check_size
 from hrl_torch.rng import BatchRNG, LevelDraws
 from hrl_torch.tables import TableBank, TableLayout, TableSet
@@ -224,12 +224,12 @@ class TabularLearner(Learner):
         rows = []
         for bank in banks:
             at = index if bank.base == banks[0].base else index + (bank.base - banks[0].base)
-            rows.append(torch.take(bank.store, at))
+            rows.append(take_flat(bank.store, at))
         return blocked, dead, rows
 
     def primitive_values(self, ctx: StepContext, bank: TableBank) -> torch.Tensor:
         """``[B, T]``: ``bank``'s values of the primitive tables at ``ctx`` (0 elsewhere)."""
-        values = torch.take(bank.store, self.plan.prim_index_at(ctx, bank))
+        values = take_flat(bank.store, self.plan.prim_index_at(ctx, bank))
         value = torch.zeros(values.shape[0], self.layout.n_tables, device=values.device)
         return value.index_copy_(1, self.plan.prims, values)
 

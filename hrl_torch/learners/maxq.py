@@ -26,7 +26,7 @@ from hrl_torch.executor import LEVEL, PRIMITIVE
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.ops import argmax_last, discount, entries
+from hrl_torch.ops import argmax_last, discount, entries, take_flat
 
 
 class MaxQLearner(TabularLearner):
@@ -106,7 +106,7 @@ class MaxQLearner(TabularLearner):
         value_int = value.clone() if self.internal else value
         q_rows = []
         for ids, kids, unavailable, gone, c, *c_int in self.groups(penalty, dead, *rows):
-            child_v = torch.take(value, kids)
+            child_v = take_flat(value, kids)
             q_ext = child_v + c
             if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
                 q_int = child_v + c_int[0]

@@ -35,7 +35,7 @@ from hrl_torch.executor import LEVEL
 from hrl_torch.exploration import Schedule
 from hrl_torch.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.ops import argmax_last, columns, entries
+from hrl_torch.ops import argmax_last, columns, entries, take_flat
 
 
 def three_part_targets(
@@ -135,7 +135,7 @@ class ThreePartLearner(TabularLearner):
         full = torch.zeros_like(value)
         q_rows = []
         for ids, kids, unavailable, gone, c_part, ce_part in self.groups(blocked, dead, c, ce):
-            projected = torch.take(value, kids) + c_part  # Eq. 4.11
+            projected = take_flat(value, kids) + c_part  # Eq. 4.11
             q = projected + ce_part  # Eq. 4.7
             best = argmax_last(q.masked_fill(unavailable, -torch.inf), keepdim=True)
             for out, rows in ((value, projected), (ce_best, ce_part), (full, q)):
