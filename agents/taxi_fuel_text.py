@@ -16,10 +16,14 @@ Beside ``taxi-fuel`` (``agents.taxi_fuel``), three things follow the text:
   reward and no duration, so an episode's end costs no time.
 
 Algorithms: ``hpgrl`` (Algorithm 3 at every node, one softmax parameter per (state, child)),
-``maxq-q`` and flat ``q`` over the 8,750 states, configured as on ``taxi-fuel``.
+``maxq-q`` and flat ``q`` over the 8,750 states, configured as on ``taxi-fuel`` except MAXQ-Q's
+step size and final epsilon (``MAXQ_ALPHA``, ``MAXQ_EXPLORATION``: chosen by ``hrl-torch sweep``
+on this domain, docs/reproduction.md).
 """
 
 from __future__ import annotations
+
+from fractions import Fraction
 
 from agents.taxi import (
     IN_TAXI,
@@ -36,7 +40,7 @@ from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
 from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
 from hrl_torch.domain import AlgoSpec, DomainSpec
-from hrl_torch.exploration import Greedy
+from hrl_torch.exploration import Greedy, linear_epsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner
@@ -46,6 +50,10 @@ N_ACTIONS = 7
 #: greedy evaluation: steps per eval row (every row runs episodes one after the other)
 EVAL_HORIZON = 500
 EVAL_ROWS = 32
+#: MAXQ-Q's step size here (a sweep of 0.01-1.0 on 3 seeds: 0.03 best; ``taxi-fuel`` uses 0.5)
+MAXQ_ALPHA = 0.03
+#: MAXQ-Q's epsilon, 1 -> 0.01 over the first third of the budget (the sweep: 0.01 beat 0.05)
+MAXQ_EXPLORATION = linear_epsilon(1.0, 0.01, Fraction(1, 3))
 
 
 def text_hierarchy() -> TaskGraph:
@@ -170,8 +178,8 @@ DOMAIN = DomainSpec(
         ),
         "maxq-q": _spec(
             text_hierarchy,
-            Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
-            epsilon_first_third,
+            Make(MaxQLearner, alpha=MAXQ_ALPHA, gamma=1.0, init=PESSIMISTIC_INIT),
+            MAXQ_EXPLORATION,
             1_000_000,
             "MAXQ-Q (Dietterich 2000), the root over the full state",
         ),

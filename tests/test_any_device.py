@@ -166,7 +166,12 @@ def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_m
 
 @pytest.mark.parametrize(
     ("domain", "algo"),
-    [("ship-steering", "hybrid"), ("ship-steering", "flat-pg"), ("taxi-fuel", "hpgrl")],
+    [
+        ("ship-steering", "hybrid"),
+        ("ship-steering", "flat-pg"),
+        ("ship-steering", "flat-pg-text"),  # (online, beta = 1: the entry-wise CPU weights)
+        ("taxi-fuel", "hpgrl"),
+    ],
 )
 def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeypatch):
     import hrl_torch.devices

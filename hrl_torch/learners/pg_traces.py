@@ -73,15 +73,35 @@ def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) 
     if pair.numel() == 0:
         return
     count = lookup(rows["count"].view(-1), pair)
-    filled = torch.arange(k1, device=pair.device) < count[:, None]
-    reward = lookup(rows["reward"].view(-1, k1), pair)
-    weight = _weights(learner, count, reward, filled, lookup(cell.view(-1), pair))
-    sel = filled.nonzero()
-    entry = pair[sel[:, 0]] * k1 + sel[:, 1]  # flat ring-entry ids
+    # the filled entries, pair by pair in ring order (what ``filled.nonzero()`` lists), in
+    # O(entries): no [pairs, K + 1] mask
+    owner = torch.repeat_interleave(torch.arange(pair.numel(), device=pair.device), count)
+    start = torch.repeat_interleave(count.cumsum(0) - count, count)
+    slot = torch.arange(owner.numel(), device=pair.device) - start
+    entry = lookup(pair, owner) * k1 + slot  # flat ring-entry ids
+    if learner.config.online:
+        w = _online_weights(learner, rows, pair * k1 + (count - 1).clamp_min(0), count, owner, slot)
+    else:
+        filled = torch.arange(k1, device=pair.device) < count[:, None]
+        reward = lookup(rows["reward"].view(-1, k1), pair)
+        weight = _weights(learner, count, reward, filled, lookup(cell.view(-1), pair))
+        w = weight[owner, slot].float()
     index = lookup(rows["index"].view(-1, learner.width), entry)
     value = lookup(rows["value"].view(-1, learner.width), entry)
-    w = weight[sel[:, 0], sel[:, 1]].float()
     _add(learner, index.reshape(-1), (w if learner.config.frozen else alpha * w)[:, None] * value)
+
+
+def _online_weights(learner, rows, last, count, owner, slot) -> torch.Tensor:
+    """``_weights``' online ``w_n = r_k beta^(k - n)`` at the filled entries only (same values).
+
+    ``last``: each pair's newest ring entry (this step's reward). O(entries), not O(pairs x K).
+    """
+    r = lookup(rows["reward"].view(-1), last).double()
+    beta = learner.config.beta
+    if beta == 1.0:  # (beta ** m is exactly 1)
+        return lookup(r, owner).float()
+    age = (lookup(count, owner) - 1 - slot).double()
+    return (lookup(r, owner) * beta**age).float()
 
 
 def _apply_static(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
