@@ -18,7 +18,10 @@ the controller (docs/reproduction.md, "Why the low level is the bottleneck").
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
 
 import torch
 
@@ -35,7 +38,7 @@ from agents.ship import (
     make_hybrid,
     ship_hierarchy,
 )
-from agents.ship_text import TEXT, make_hybrid_text
+from agents.ship_text import TEXT, make_hybrid_text, subtask_coder
 from envs.ship import MAX_TURN, ship_dynamics, wrap_degrees
 from hrl_torch.policies import squash
 
@@ -97,17 +100,23 @@ def main() -> None:
     parser.add_argument("--starts", type=int, default=20_000)
     parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-text"])
     a = parser.parse_args()
+    coders = [low_level_tile_coder()] * 2
     if a.algo == "hybrid":
         learner = make_hybrid(ship_hierarchy(PARAMS.out_of_bounds_reward), a.seeds, PARAMS)
     else:
-        learner = make_hybrid_text(ship_hierarchy(TEXT.out_of_bounds_reward), a.seeds, TEXT)
+        saved = Path(a.run) / f"{a.algo}.json"  # the run's TextParams (features, ...)
+        params = TEXT
+        if saved.exists():
+            params = replace(TEXT, **json.loads(saved.read_text())["params"])
+        learner = make_hybrid_text(ship_hierarchy(params.out_of_bounds_reward), a.seeds, params)
+        coders = [subtask_coder(k, params) for k in range(2)]
     state = torch.load(f"{a.run}/{a.algo}.pt", weights_only=True)
-    for key, value in learner.state_dict().items():  # runs saved before PGConfig.baseline
-        if key.endswith("reward_to_go_mean"):
+    for key, value in learner.state_dict().items():  # runs saved before these buffers
+        if key.endswith(("reward_to_go_mean", "value_table")):
             state.setdefault(key, torch.zeros_like(value))
     learner.load_state_dict(state)
-    coder = low_level_tile_coder()
     for subtask, name in enumerate(SUBTASK_NAMES):
+        coder = coders[subtask]
         print(name)
         rates = []
         for p in range(a.seeds):

@@ -116,3 +116,64 @@ def test_text_variants_build_and_step(algo):
     pg = learner.pg if isinstance(learner, HybridTextLearner) else learner
     assert math.isfinite(float(pg.theta.abs().sum()))
     assert spec.envs_per_learner == 64
+
+
+def test_bearing_coder_tiles_the_heading_error_to_the_goal():
+    from agents.ship import bearing, low_level_tile_coder
+    from agents.ship_text import BearingTileCoder, subtask_coder
+
+    coder, plain = BearingTileCoder(LOCAL_GOAL[0]), low_level_tile_coder()
+    g = torch.Generator().manual_seed(0)
+    state = torch.rand(64, 4, generator=g) * torch.tensor([150.0, 150.0, 360.0, 30.0])
+    state -= torch.tensor([0.0, 0.0, 180.0, 15.0])
+    error = state[:, 2] - bearing(state[:, :2], LOCAL_GOAL[0].expand(64, 2))
+    mapped = torch.cat([state[:, :2], ((error + 180) % 360 - 180)[:, None], state[:, 3:]], 1)
+    assert torch.equal(coder(state), plain(mapped))
+    # heading straight at the goal from two places: the same heading tiles, other places
+    at = torch.tensor([[40.0, 40.0, 45.0, 0.0], [140.0, 40.0, 0.0, 0.0]])
+    assert not torch.equal(plain(at)[0], plain(at)[1]) and coder(at).shape == (2, 9)
+    assert isinstance(subtask_coder(1, replace(TEXT, features="bearing")), BearingTileCoder)
+    with pytest.raises(ValueError, match="features"):
+        subtask_coder(0, replace(TEXT, features="polar"))
+
+
+def _subtask_run(params, setup, steps=60):
+    """``theta`` after ``steps`` steps of the diagonal subtask (2 envs, fixed streams)."""
+    learner = make_subtask_learner(0, 1, params)
+    setup(learner)
+    env = ShipSubtaskEnv(0, [3], 2)
+    agent = HierarchicalAgent(learner.graph, learner, Greedy(), BatchRNG([3], 2, "t"), 2)
+    action = agent.start(env.reset())
+    ended = 0
+    for _ in range(steps):
+        td = env.step(action)
+        ended += int(td["terminated"].sum() + td["truncated"].sum())
+        action = agent.step(td)
+    return learner, ended
+
+
+def test_state_baseline_with_a_constant_table_is_the_constant_baseline():
+    # V(s) = c everywhere must give Equation 5.2 less b = c: PGConfig.baseline's rule
+    c, tiny = -30.0, 1e-30
+    base = replace(TEXT, pg_online=False, pg_alpha=0.05)
+    const, n1 = _subtask_run(
+        replace(base, pg_baseline=tiny), lambda m: m.reward_to_go_mean.fill_(c)
+    )
+    state, n2 = _subtask_run(
+        replace(base, pg_value_rate=tiny), lambda m: m.value_table[:-1].fill_(c)
+    )
+    plain, _ = _subtask_run(base, lambda m: None)
+    assert n1 == n2 > 0  # invocations ended, so both rules updated
+    assert torch.allclose(const.theta, state.theta, atol=1e-5)
+    assert not torch.allclose(plain.theta, state.theta, atol=1e-3)  # the baseline mattered
+
+
+def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
+    params = replace(TEXT, pg_online=False, pg_value_rate=0.5)
+    learner, ended = _subtask_run(params, lambda m: None, steps=120)
+    assert ended > 0
+    table = learner.value_table[:-1]
+    assert (table < 0).sum() > 0 and table.max() <= 0  # -1 a step: every return so far < 0
+    assert learner.value_table[-1] == 0  # the sentinel
+    with pytest.raises(ValueError, match="pg_online=False"):
+        make_subtask_learner(0, 1, replace(TEXT, pg_online=True, pg_value_rate=0.1))
