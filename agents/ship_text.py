@@ -117,22 +117,22 @@ class TextParams:
     epsilon_factor: float = 1.01
     epsilon_every: int = 50
     trigger_rate: float = 0.9
-    pg_alpha: float = 0.0025
+    pg_alpha: float = 0.03
     pg_tau: float = 2_000_000.0
     flat_alpha: float = 0.005
     flat_tau: float = 2_000_000.0
     critic_alpha: float = 0.1
     sigma: float = 1.0
     pg_beta: float = 1.0
-    pg_online: bool = True
+    pg_online: bool = False
     pg_baseline: float = 0.0
     pg_init: float = 0.0
     pg_bound: float = 0.0
-    pg_value_rate: float = 0.0
-    features: str = "state"
+    pg_value_rate: float = 0.1
+    features: str = "bearing"
     out_of_bounds_reward: float = -400.0
-    pretrain_target: float = 0.95
-    pretrain_episodes: int = 20_000
+    pretrain_target: float = 0.98
+    pretrain_episodes: int = 40_000
     pretrain_envs: int = 256
 
 

@@ -13,6 +13,8 @@ the controller (docs/reproduction.md, "Why the low level is the bottleneck").
 
     python scripts/ship_low_level_check.py --run runs/ship
     python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2
+    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2 \
+        --file runs/ship_text/hybrid-text-pretrained.pt     # right after the pretraining
 """
 
 from __future__ import annotations
@@ -99,6 +101,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5, help="learners in the saved hybrid")
     parser.add_argument("--starts", type=int, default=20_000)
     parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-text"])
+    parser.add_argument("--file", default=None, help="checkpoint (default: <run>/<algo>.pt)")
     a = parser.parse_args()
     coders = [low_level_tile_coder()] * 2
     if a.algo == "hybrid":
@@ -110,7 +113,7 @@ def main() -> None:
             params = replace(TEXT, **json.loads(saved.read_text())["params"])
         learner = make_hybrid_text(ship_hierarchy(params.out_of_bounds_reward), a.seeds, params)
         coders = [subtask_coder(k, params) for k in range(2)]
-    state = torch.load(f"{a.run}/{a.algo}.pt", weights_only=True)
+    state = torch.load(a.file or f"{a.run}/{a.algo}.pt", weights_only=True)
     for key, value in learner.state_dict().items():  # runs saved before these buffers
         if key.endswith(("reward_to_go_mean", "value_table")):
             state.setdefault(key, torch.zeros_like(value))

@@ -35,11 +35,15 @@ def test_harmonic_step_size_decays_as_assumption_5_3_asks():
         Harmonic(0.01, 0.0)
 
 
-def test_low_level_rule_is_algorithm_3_as_written():
+def test_low_level_rule_is_equation_5_2_with_beta_1_less_a_state_baseline():
     cfg = low_level_config()
-    assert cfg.online and cfg.beta == 1.0 and cfg.baseline == 0.0
+    # beta = 1 (Equation 5.3); the cycle's sum at the renewal, where R_n - V(s_n) is known
+    assert not cfg.online and cfg.beta == 1.0 and cfg.baseline == 0.0
+    assert TEXT.pg_value_rate > 0 and TEXT.features == "bearing"
     assert isinstance(cfg.alpha, Harmonic)
-    other = low_level_config(replace(TEXT, pg_beta=0.95, pg_online=False))  # comparisons only
+    every_step = low_level_config(replace(TEXT, pg_online=True, pg_value_rate=0.0))
+    assert every_step.online and every_step.beta == 1.0  # line 16 as written, for comparison
+    other = low_level_config(replace(TEXT, pg_beta=0.95))  # comparisons only
     assert not other.online and other.beta == 0.95
 
 
@@ -60,7 +64,7 @@ def test_subtask_env_starts_at_the_local_start_and_ends_on_goal_or_box():
 
 
 def test_low_level_updates_every_step_before_the_invocation_ends():
-    learner = make_subtask_learner(0, 1)
+    learner = make_subtask_learner(0, 1, replace(TEXT, pg_online=True, pg_value_rate=0.0))
     env = ShipSubtaskEnv(0, [0], 4)
     agent = HierarchicalAgent(learner.graph, learner, Greedy(), BatchRNG([0], 4, "t"), 4)
     action = agent.start(env.reset())
@@ -155,7 +159,7 @@ def _subtask_run(params, setup, steps=60):
 def test_state_baseline_with_a_constant_table_is_the_constant_baseline():
     # V(s) = c everywhere must give Equation 5.2 less b = c: PGConfig.baseline's rule
     c, tiny = -30.0, 1e-30
-    base = replace(TEXT, pg_online=False, pg_alpha=0.05)
+    base = replace(TEXT, pg_online=False, pg_alpha=0.05, pg_value_rate=0.0)
     const, n1 = _subtask_run(
         replace(base, pg_baseline=tiny), lambda m: m.reward_to_go_mean.fill_(c)
     )
@@ -169,9 +173,11 @@ def test_state_baseline_with_a_constant_table_is_the_constant_baseline():
 
 
 def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
-    params = replace(TEXT, pg_online=False, pg_value_rate=0.5)
+    params = replace(TEXT, pg_value_rate=0.5)
     learner, ended = _subtask_run(params, lambda m: None, steps=120)
     assert ended > 0
+    first, _ = _subtask_run(params, lambda m: None, steps=2)
+    assert first.theta.abs().sum() == 0  # nothing ended yet: no update before the renewal
     table = learner.value_table[:-1]
     assert (table < 0).sum() > 0 and table.max() <= 0  # -1 a step: every return so far < 0
     assert learner.value_table[-1] == 0  # the sentinel
