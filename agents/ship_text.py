@@ -445,7 +445,7 @@ def make_hybrid_text(
     epsilon = TriggeredEpsilon(
         n_learners, params.epsilon, params.epsilon_factor, params.epsilon_every
     )
-    monitor = ShipMonitor(graph, n_learners, trigger_rate=params.trigger_rate)
+    monitor = ShipMonitor(graph, n_learners, trigger_rate=params.trigger_rate, count_cut=False)
     return HybridTextLearner(graph, n_learners, value, pg, epsilon, monitor, params=params)
 
 

@@ -83,6 +83,15 @@ def learned(theta: torch.Tensor, coder) -> Callable:
     return lambda state, goal: squash(theta[coder(state)].mean(-1), -MAX_TURN, MAX_TURN)
 
 
+def band_rates(outcome, error, steps) -> list[float]:
+    """Success per band of start heading error (``BANDS``)."""
+    rates = []
+    for lo, hi in BANDS:
+        band = (error >= lo) & (error < hi)
+        rates.append((outcome[band] == 1).float().mean().item())
+    return rates
+
+
 def report(label: str, outcome, error, steps) -> None:
     print(f"  {label}: success {(outcome == 1).float().mean():.3f}")
     for lo, hi in BANDS:
@@ -121,14 +130,16 @@ def main() -> None:
     for subtask, name in enumerate(SUBTASK_NAMES):
         coder = coders[subtask]
         print(name)
-        rates = []
+        rates, worst = [], []
         for p in range(a.seeds):
             policy = learned(learner.pg.group_view(name, p), coder)
             result = run(subtask, policy, a.starts, seed=p)
             rates.append(round((result[0] == 1).float().mean().item(), 3))
+            worst.append(round(min(band_rates(*result)), 3))
             if p == 0:
                 report("learned, seed 0", *result)
         print(f"  learned, success per seed: {rates}")
+        print(f"  learned, worst heading band per seed: {worst}")
         report("proportional controller", *run(subtask, proportional, a.starts, seed=0))
 
 

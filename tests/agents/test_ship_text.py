@@ -183,3 +183,30 @@ def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
     assert learner.value_table[-1] == 0  # the sentinel
     with pytest.raises(ValueError, match="pg_online=False"):
         make_subtask_learner(0, 1, replace(TEXT, pg_online=True, pg_value_rate=0.1))
+
+
+def test_low_level_success_counts_the_executions_that_ended_on_their_own():
+    from agents.ship import ShipMonitor
+
+    spec = DOMAIN.algos["hybrid-text"]
+    graph = spec.make_graph()
+    learner = spec.make_learner(graph, 1)
+    assert not learner.monitor.count_cut
+    every = ShipMonitor(graph, 1)  # today's count: a cut execution is a failure
+    observe = learner.monitor.observe
+
+    def both(batch):
+        every.observe(batch)
+        return observe(batch)
+
+    learner.monitor.observe = both
+    env = DOMAIN.make_env([0], 32)
+    explore = spec.make_exploration(spec.train)
+    agent = HierarchicalAgent(graph, learner, explore, BatchRNG([0], 32, "t"), 32, spec.executor)
+    action = agent.start(env.reset())
+    for _ in range(150):
+        action = agent.step(env.step(action))
+    ended = int(every.episodes.events.sum())
+    pairs = zip(every.low, learner.monitor.low, strict=True)
+    cut = sum(int(a.events.sum() - b.events.sum()) for a, b in pairs)
+    assert ended > 0 and cut == ended  # each episode's end cuts the one running execution
