@@ -210,3 +210,15 @@ def test_low_level_success_counts_the_executions_that_ended_on_their_own():
     pairs = zip(every.low, learner.monitor.low, strict=True)
     cut = sum(int(a.events.sum() - b.events.sum()) for a, b in pairs)
     assert ended > 0 and cut == ended  # each episode's end cuts the one running execution
+
+
+def test_state_baseline_static_rows_match_the_compacted_rows():
+    # off the CPU every ring is read with static shapes: the same sums
+    def static(m):
+        m.static_rows = True
+
+    compact, n1 = _subtask_run(TEXT, lambda m: None, steps=120)
+    dense, n2 = _subtask_run(TEXT, static, steps=120)
+    assert n1 == n2 > 0 and compact.value_table.abs().sum() > 0
+    assert torch.allclose(compact.theta, dense.theta, atol=1e-5)
+    assert torch.allclose(compact.value_table, dense.value_table, atol=1e-4)
