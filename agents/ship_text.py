@@ -10,12 +10,16 @@ follow the text where today's variants deviate:
   success within 10 m of its goal, failure outside the 150 m box), learned by flat PGRL until
   every seed succeeds in ``pretrain_target`` of a block of 1000 episodes (its own learning
   curve), then handed to the hybrid, which keeps learning it.
-- **Algorithm 3 lines 11-16 as written**: every step (line 16), ``beta = 1`` (Equation 5.3) and a
-  decaying step size ``alpha_k = alpha_0 tau / (tau + k)`` (``Harmonic``: Assumptions 5.3 and
-  5.4, ``sum alpha_k = inf``, ``sum alpha_k^2 < inf``).
+- **Algorithm 3 lines 11-16 with** ``beta = 1`` (Equation 5.3) and a decaying step size
+  ``alpha_k = alpha_0 tau / (tau + k)`` (``Harmonic``: Assumptions 5.3 and 5.4, ``sum alpha_k =
+  inf``, ``sum alpha_k^2 < inf``). Flat PGRL updates every step (line 16). The low level applies
+  the invocation's sum at the renewal less a state baseline, ``sum_n (R_n - V(s_n)) g_n``
+  (``value_baseline_traces``), on a CMAC of the heading error to its goal
+  (``BearingTileCoder``): with the rule as written it stayed below 80% success (issue 26,
+  docs/reproduction.md).
 - **Epsilon** 0.1, unchanged until the low level "reaches a certain level" (both subtasks
-  succeed in ``trigger_rate`` of their last 1000 executions), then divided by 1.01 every 50
-  episodes (``TriggeredEpsilon``).
+  succeed in ``trigger_rate`` of their last 1000 executions that ended on their own), then
+  divided by 1.01 every 50 episodes (``TriggeredEpsilon``).
 - **A few streams per seed** (``STREAMS`` envs per learner, their updates summed).
 - **Out-of-square penalty** ``out_of_bounds_reward``: the smallest that removes the incentive to
   leave (``leave_penalty``; see docs/reproduction.md). Flat PGRL and actor-critic get the same
