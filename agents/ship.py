@@ -410,12 +410,21 @@ class ShipMonitor(nn.Module):
         n_learners: population size ``P``.
         n_bins: blocks of 1000 episodes (and of 1000 executions) kept.
         trigger_rate: low-level success rate that starts the epsilon decay.
+        count_cut: count the executions the episode's end cut short (the gate passed, the
+            square left, the time limit) as low-level failures (default); ``False`` counts
+            only those that ended on their own (local success, local failure, the guard).
     """
 
     def __init__(
-        self, graph: TaskGraph, n_learners: int, n_bins: int = 100, trigger_rate: float = 0.8
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        n_bins: int = 100,
+        trigger_rate: float = 0.8,
+        count_cut: bool = True,
     ) -> None:
         super().__init__()
+        self.count_cut = count_cut
         self.hierarchical = graph.max_levels > 2
         kind = torch.full((graph.n_nodes,), -1, dtype=torch.long)
         for k, name in enumerate(DIRECTION_NODES):
@@ -453,6 +462,8 @@ class ShipMonitor(nn.Module):
         if self.hierarchical:
             rows["calls"] += root
             executed = root & level["child_done"][:, 0]
+            if not self.count_cut:  # (an execution the episode's end cut short)
+                executed = executed & ~ended
             kind = self.kind_of_node[level["node"][:, 1]]
             local = level["next_features"][:, 1]
             success = local_success(local, kind.clamp_min(0))

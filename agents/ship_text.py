@@ -10,12 +10,16 @@ follow the text where today's variants deviate:
   success within 10 m of its goal, failure outside the 150 m box), learned by flat PGRL until
   every seed succeeds in ``pretrain_target`` of a block of 1000 episodes (its own learning
   curve), then handed to the hybrid, which keeps learning it.
-- **Algorithm 3 lines 11-16 as written**: every step (line 16), ``beta = 1`` (Equation 5.3) and a
-  decaying step size ``alpha_k = alpha_0 tau / (tau + k)`` (``Harmonic``: Assumptions 5.3 and
-  5.4, ``sum alpha_k = inf``, ``sum alpha_k^2 < inf``).
+- **Algorithm 3 lines 11-16 with** ``beta = 1`` (Equation 5.3) and a decaying step size
+  ``alpha_k = alpha_0 tau / (tau + k)`` (``Harmonic``: Assumptions 5.3 and 5.4, ``sum alpha_k =
+  inf``, ``sum alpha_k^2 < inf``). Flat PGRL updates every step (line 16). The low level applies
+  the invocation's sum at the renewal less a state baseline, ``sum_n (R_n - V(s_n)) g_n``
+  (``value_baseline_traces``), on a CMAC of the heading error to its goal
+  (``BearingTileCoder``): with the rule as written it stayed below 80% success (issue 26,
+  docs/reproduction.md).
 - **Epsilon** 0.1, unchanged until the low level "reaches a certain level" (both subtasks
-  succeed in ``trigger_rate`` of their last 1000 executions), then divided by 1.01 every 50
-  episodes (``TriggeredEpsilon``).
+  succeed in ``trigger_rate`` of their last 1000 executions that ended on their own), then
+  divided by 1.01 every 50 episodes (``TriggeredEpsilon``).
 - **A few streams per seed** (``STREAMS`` envs per learner, their updates summed).
 - **Out-of-square penalty** ``out_of_bounds_reward``: the smallest that removes the incentive to
   leave (``leave_penalty``; see docs/reproduction.md). Flat PGRL and actor-critic get the same
@@ -29,6 +33,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from agents.ship import (
+    LOCAL_GOAL,
     LOCAL_START,
     LOW_LEVEL_GUARD,
     LOW_LEVEL_REWARDS,
@@ -44,12 +49,16 @@ from agents.ship import (
     low_level_feature_rewards,
     low_level_tile_coder,
 )
-from envs.ship import ShipSteeringEnv
+from agents.ship import bearing as goal_bearing
+from envs.ship import ShipSteeringEnv, wrap_degrees
 from hrl_torch.exploration import TriggeredEpsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.hybrid import HybridLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
+from hrl_torch.learners.pg_traces import _weights
 from hrl_torch.learners.q_lambda import QLambdaLearner
+from hrl_torch.policies import TileGaussianPolicyHead
+from hrl_torch.tiles import TileCoder
 
 #: envs per learner of the -text variants (see docs/reproduction.md for what it changes)
 STREAMS = 64
@@ -94,6 +103,15 @@ class TextParams:
         sigma: Gaussian width before the squash (text: 1).
         pg_beta, pg_online: the low level's eligibility discount and update timing (text: 1,
             every step; other values are the family's other members, for comparison only).
+        pg_baseline, pg_init: the low level's ``PGConfig.baseline`` and ``init`` (ours).
+        pg_bound: after each update the low level's parameters are projected onto
+            ``[-pg_bound, pg_bound]`` (ours; 0: none). ``A`` is their tile mean, so the mean
+            action stays where the sigmoid still responds to ``u``.
+        pg_value_rate: step size of the low level's state baseline ``V`` (ours; 0: none;
+            ``value_baseline_traces``).
+        features: the low level's CMAC input: ``"state"`` (x, y, theta, theta_dot) or
+            ``"bearing"`` (x, y, theta - theta_hat, theta_dot), ``theta_hat`` the bearing to the
+            local goal (ours; the same 5 x 5 x 36 x 5 tiles, ``BearingTileCoder``).
         out_of_bounds_reward: the root's reward for leaving the square (ours, see module doc).
         pretrain_target: low-level success per 1000 episodes the pretraining stops at.
         pretrain_episodes: cap on pretraining episodes per subtask and seed.
@@ -106,21 +124,77 @@ class TextParams:
     epsilon_factor: float = 1.01
     epsilon_every: int = 50
     trigger_rate: float = 0.9
-    pg_alpha: float = 0.0025
+    pg_alpha: float = 0.03
     pg_tau: float = 2_000_000.0
     flat_alpha: float = 0.005
     flat_tau: float = 2_000_000.0
     critic_alpha: float = 0.1
     sigma: float = 1.0
     pg_beta: float = 1.0
-    pg_online: bool = True
+    pg_online: bool = False
+    pg_baseline: float = 0.0
+    pg_init: float = 0.0
+    pg_bound: float = 0.0
+    pg_value_rate: float = 0.1
+    features: str = "bearing"
     out_of_bounds_reward: float = -400.0
-    pretrain_target: float = 0.95
-    pretrain_episodes: int = 20_000
+    pretrain_target: float = 0.98
+    pretrain_episodes: int = 40_000
     pretrain_envs: int = 256
 
 
 TEXT = TextParams()
+FEATURES = ("state", "bearing")
+
+
+class BearingTileCoder(TileCoder):
+    """The low level's CMAC over (x, y, theta - theta_hat, theta_dot) of the local state.
+
+    ``theta_hat`` is the bearing from (x, y) to ``goal``, the heading error wrapped to
+    [-180, 180); the grid is ``low_level_tile_coder``'s (9 tilings of 5 x 5 x 36 x 5). The
+    heading that points at the goal is one column of tiles at every position, so what is
+    learned about turning toward the goal at one position holds at the others.
+    """
+
+    def __init__(self, goal: torch.Tensor) -> None:
+        plain = low_level_tile_coder()
+        super().__init__(
+            plain.low.tolist(),
+            plain.high.tolist(),
+            plain.resolution.tolist(),
+            plain.n_tilings,
+            plain.wrap.tolist(),
+        )
+        self.register_buffer("goal", torch.as_tensor(goal, dtype=torch.float32).reshape(2))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Active tiles of local states ``x [..., 4]``: ``[..., T]`` long."""
+        flat = x.reshape(-1, 4).float()
+        goal = self.goal.to(flat.device).expand(flat.shape[0], 2)
+        error = wrap_degrees(flat[:, 2] - goal_bearing(flat[:, :2], goal))
+        mapped = torch.cat([flat[:, :2], error[:, None], flat[:, 3:]], dim=-1)
+        return super().forward(mapped.view(*x.shape[:-1], 4))
+
+
+def subtask_coder(subtask: int, params: TextParams = TEXT) -> TileCoder:
+    """The CMAC of low-level ``subtask`` (``params.features``)."""
+    if params.features == "state":
+        return low_level_tile_coder()
+    if params.features == "bearing":
+        return BearingTileCoder(LOCAL_GOAL[subtask])
+    raise ValueError(f"features must be one of {FEATURES}, got {params.features!r}")
+
+
+def subtask_heads(params: TextParams = TEXT) -> dict[str, TileGaussianPolicyHead]:
+    """One tile-coded Gaussian per low-level group, on its subtask's CMAC.
+
+    The plain CMAC is one coder for both groups (one ``act`` call, as before ``features``).
+    """
+    shared = low_level_tile_coder() if params.features == "state" else None
+    return {
+        name: TileGaussianPolicyHead(name, shared or subtask_coder(k, params), params.sigma)
+        for k, name in enumerate(SUBTASK_NAMES)
+    }
 
 
 def low_level_config(params: TextParams = TEXT) -> PGConfig:
@@ -131,6 +205,8 @@ def low_level_config(params: TextParams = TEXT) -> PGConfig:
         online=params.pg_online,
         beta=params.pg_beta,
         trace_len=LOW_LEVEL_GUARD,
+        init=params.pg_init,
+        baseline=params.pg_baseline,
     )
 
 
@@ -168,6 +244,95 @@ class ShipSubtaskEnv(ShipSteeringEnv):
         return reward, duration, success | local_failure(self.state)
 
 
+def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> None:
+    """Equation 5.2 less a state baseline: ``theta += alpha sum_n (R_n - V(s_n)) g_n``.
+
+    At the renewal of the pairs ``pairs [B, S]``; ``R_n`` is the (``beta``-discounted)
+    reward-to-go of ring entry ``n`` and ``V(s_n)`` the mean of ``learner.value_table`` over
+    the entry's active tiles (the policy's own CMAC: ``g_n``'s indices). ``V`` depends on
+    ``s_n`` alone and is read before this update changes it, so the estimate stays unbiased
+    (``E[g_n | s_n] = 0``). Then ``V`` moves toward ``R_n`` (Monte Carlo): every active tile by
+    ``value_rate`` times the mean of ``R_n - V(s_n)`` over the entries that hit it.
+    """
+    k1, width = learner.config.trace_len + 1, learner.width
+    if learner.static(pairs.device):  # every pair, the others weigh 0 (no host read)
+        pair, chosen = torch.arange(pairs.numel(), device=pairs.device), pairs.reshape(-1)
+    else:
+        pair = pairs.reshape(-1).nonzero().squeeze(1)
+        if pair.numel() == 0:
+            return
+        chosen = torch.ones_like(pair, dtype=torch.bool)
+    count = rows["count"].view(-1)[pair]
+    filled = (torch.arange(k1, device=pair.device) < count[:, None]) & chosen[:, None]
+    togo = _weights(learner, count, rows["reward"].view(-1, k1)[pair], filled, cell.view(-1)[pair])
+    index = rows["index"].view(-1, k1, width)[pair]  # [n, K + 1, T] (stale entries in range)
+    table = learner.value_table
+    advantage = torch.where(filled, togo.float() - table[index].mean(-1), 0.0)
+    flat = index.reshape(-1)
+    hits = filled[..., None].expand_as(index).reshape(-1).float()
+    total = torch.zeros_like(table).index_add_(
+        0, flat, advantage[..., None].expand_as(index).reshape(-1)
+    )
+    seen = torch.zeros_like(table).index_add_(0, flat, hits)
+    table.add_(learner.value_rate * total / seen.clamp_min(1.0))
+    table[-1:].zero_()  # (the sentinel)
+    step = (alpha * advantage)[..., None] * rows["value"].view(-1, k1, width)[pair]
+    learner.theta.index_add_(0, flat, step.reshape(-1))
+    learner.theta[-1:].zero_()
+
+
+class _LowLevelRule:
+    """Mixin of the ``-text`` low level: an optional state baseline and parameter bound.
+
+    ``value_rate > 0``: line 16 at the renewal less ``V(s_n)`` (``value_baseline_traces``;
+    needs ``online=False``, which sums to the same update per cycle as every step, and
+    ``baseline=0``). ``bound > 0``: after every update the parameters are projected onto
+    ``[-bound, bound]`` (projected stochastic approximation).
+    """
+
+    bound: float = 0.0
+    value_rate: float = 0.0
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.register_buffer("value_table", torch.zeros_like(self.theta))
+
+    def configure(self, params: TextParams) -> None:
+        """Take ``pg_bound`` and ``pg_value_rate`` from ``params``."""
+        cfg = self.config
+        if params.pg_value_rate and (cfg.online or cfg.frozen or cfg.baseline):
+            raise ValueError("pg_value_rate needs pg_online=False, no pg_baseline, not frozen")
+        if params.pg_value_rate < 0 or params.pg_bound < 0:
+            raise ValueError("pg_value_rate and pg_bound must be >= 0")
+        self.bound, self.value_rate = params.pg_bound, params.pg_value_rate
+
+    def apply_traces(self, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
+        if not self.value_rate:
+            return super().apply_traces(rows, pairs, alpha, cell)
+        value_baseline_traces(self, rows, pairs, alpha, cell)
+
+    def update(self, batch, step: int) -> None:
+        super().update(batch, step)
+        if self.bound:
+            self.theta.clamp_(-self.bound, self.bound)  # (the sentinel 0 stays 0)
+
+
+class SubtaskPGRL(_LowLevelRule, FlatPGRL):
+    """Flat PGRL of one low-level subtask (Figure 5.5) with the ``-text`` low-level rule."""
+
+
+class LowLevelPG(_LowLevelRule, HPGRLLearner):
+    """The hybrid's low level (HPGRL over the eight directions) with the same rule."""
+
+
+def group_block(learner, tensor: torch.Tensor, group: str, p: int) -> torch.Tensor:
+    """Learner ``p``'s block of group ``group`` in a tensor laid out like ``learner.theta``."""
+    k, head = learner.group_names.index(group), learner.heads[group]
+    flat = tensor[: learner.sentinel].view(learner.n_learners, learner.total)
+    start = int(learner.params.offset[k])
+    return flat[p, start : start + head.n_states * head.n_cols]
+
+
 def subtask_graph() -> TaskGraph:
     """One PG root steering on the local state (the flat PGRL of the text's Figure 5.5 runs)."""
     root = Subtask("Root", ["Turn"], features=lambda o: o["observation"], n_features=4)
@@ -178,15 +343,17 @@ def make_subtask_learner(subtask: int, n_learners: int, params: TextParams = TEX
     """Flat PGRL of one subtask: its group's CMAC and internal rewards, the text's step rule."""
     graph = subtask_graph()
     name = SUBTASK_NAMES[subtask]
-    learner = FlatPGRL(
+    learner = SubtaskPGRL(
         graph,
         n_learners,
         low_level_config(params),
         {"Root": name},
-        low_level_tile_coder(),
+        subtask_coder(subtask, params),
         {"Root": LOW_LEVEL_REWARDS[subtask]},
+        heads={name: subtask_heads(params)[name]},
     )
     learner.monitor = ShipMonitor(graph, n_learners, n_bins=400)
+    learner.configure(params)
     return learner
 
 
@@ -259,6 +426,9 @@ class HybridTextLearner(HybridLearner):
             sub, stats = pretrain_subtask(subtask, seeds, self.params, on_step)
             for p in range(self.n_learners):
                 self.pg.group_view(name, p).copy_(sub.group_view(name, p))
+                group_block(self.pg, self.pg.value_table, name, p).copy_(
+                    group_block(sub, sub.value_table, name, p)
+                )
             self.pretrain_stats[name] = stats
         self.pretrained.fill_(True)
         return self.pretrain_stats
@@ -269,18 +439,20 @@ def make_hybrid_text(
 ) -> HybridTextLearner:
     """Q(lambda) root (text's settings) over the pretrained HPGRL subtasks (Algorithm 3)."""
     value = QLambdaLearner(graph, n_learners, params.q_alpha, params.lam, nodes=["Root"])
-    pg = HPGRLLearner(
+    pg = LowLevelPG(
         graph,
         n_learners,
         low_level_config(params),
         direction_groups(),
         low_level_tile_coder(),
         low_level_feature_rewards(),
+        heads=subtask_heads(params),
     )
+    pg.configure(params)
     epsilon = TriggeredEpsilon(
         n_learners, params.epsilon, params.epsilon_factor, params.epsilon_every
     )
-    monitor = ShipMonitor(graph, n_learners, trigger_rate=params.trigger_rate)
+    monitor = ShipMonitor(graph, n_learners, trigger_rate=params.trigger_rate, count_cut=False)
     return HybridTextLearner(graph, n_learners, value, pg, epsilon, monitor, params=params)
 
 

@@ -138,6 +138,7 @@ def train(algo: str, args: Args, out: Path) -> dict:
         pretrain = learner.pretrain(seeds)
         for name, st in pretrain.items():
             print(f"  {name}: {st['episodes']} episodes, {st['seconds']:.0f} s")
+        torch.save(learner.state_dict(), out / f"{algo}-pretrained.pt")  # (ship_low_level_check)
     env = ShipSteeringEnv(seeds, envs)
     rng = BatchRNG(seeds, envs, "explore")
     exploration = spec.make_exploration(spec.train)

@@ -13,12 +13,17 @@ the controller (docs/reproduction.md, "Why the low level is the bottleneck").
 
     python scripts/ship_low_level_check.py --run runs/ship
     python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2
+    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2 \
+        --file runs/ship_text/hybrid-text-pretrained.pt     # right after the pretraining
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
 
 import torch
 
@@ -35,7 +40,7 @@ from agents.ship import (
     make_hybrid,
     ship_hierarchy,
 )
-from agents.ship_text import TEXT, make_hybrid_text
+from agents.ship_text import TEXT, make_hybrid_text, subtask_coder
 from envs.ship import MAX_TURN, ship_dynamics, wrap_degrees
 from hrl_torch.policies import squash
 
@@ -78,6 +83,15 @@ def learned(theta: torch.Tensor, coder) -> Callable:
     return lambda state, goal: squash(theta[coder(state)].mean(-1), -MAX_TURN, MAX_TURN)
 
 
+def band_rates(outcome, error, steps) -> list[float]:
+    """Success per band of start heading error (``BANDS``)."""
+    rates = []
+    for lo, hi in BANDS:
+        band = (error >= lo) & (error < hi)
+        rates.append((outcome[band] == 1).float().mean().item())
+    return rates
+
+
 def report(label: str, outcome, error, steps) -> None:
     print(f"  {label}: success {(outcome == 1).float().mean():.3f}")
     for lo, hi in BANDS:
@@ -96,27 +110,36 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5, help="learners in the saved hybrid")
     parser.add_argument("--starts", type=int, default=20_000)
     parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-text"])
+    parser.add_argument("--file", default=None, help="checkpoint (default: <run>/<algo>.pt)")
     a = parser.parse_args()
+    coders = [low_level_tile_coder()] * 2
     if a.algo == "hybrid":
         learner = make_hybrid(ship_hierarchy(PARAMS.out_of_bounds_reward), a.seeds, PARAMS)
     else:
-        learner = make_hybrid_text(ship_hierarchy(TEXT.out_of_bounds_reward), a.seeds, TEXT)
-    state = torch.load(f"{a.run}/{a.algo}.pt", weights_only=True)
-    for key, value in learner.state_dict().items():  # runs saved before PGConfig.baseline
-        if key.endswith("reward_to_go_mean"):
+        saved = Path(a.run) / f"{a.algo}.json"  # the run's TextParams (features, ...)
+        params = TEXT
+        if saved.exists():
+            params = replace(TEXT, **json.loads(saved.read_text())["params"])
+        learner = make_hybrid_text(ship_hierarchy(params.out_of_bounds_reward), a.seeds, params)
+        coders = [subtask_coder(k, params) for k in range(2)]
+    state = torch.load(a.file or f"{a.run}/{a.algo}.pt", weights_only=True)
+    for key, value in learner.state_dict().items():  # runs saved before these buffers
+        if key.endswith(("reward_to_go_mean", "value_table")):
             state.setdefault(key, torch.zeros_like(value))
     learner.load_state_dict(state)
-    coder = low_level_tile_coder()
     for subtask, name in enumerate(SUBTASK_NAMES):
+        coder = coders[subtask]
         print(name)
-        rates = []
+        rates, worst = [], []
         for p in range(a.seeds):
             policy = learned(learner.pg.group_view(name, p), coder)
             result = run(subtask, policy, a.starts, seed=p)
             rates.append(round((result[0] == 1).float().mean().item(), 3))
+            worst.append(round(min(band_rates(*result)), 3))
             if p == 0:
                 report("learned, seed 0", *result)
         print(f"  learned, success per seed: {rates}")
+        print(f"  learned, worst heading band per seed: {worst}")
         report("proportional controller", *run(subtask, proportional, a.starts, seed=0))
 
 

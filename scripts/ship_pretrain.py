@@ -14,8 +14,8 @@ from dataclasses import fields
 import numpy as np
 import torch
 
-from agents.ship import SUBTASK_NAMES, low_level_tile_coder
-from agents.ship_text import TEXT, pretrain_subtask, with_overrides
+from agents.ship import SUBTASK_NAMES
+from agents.ship_text import TEXT, pretrain_subtask, subtask_coder, with_overrides
 from scripts.ship_low_level_check import learned, report, run
 
 
@@ -41,7 +41,7 @@ def main() -> None:
     print(f"{name} {changes}: {stats['episodes']} episodes, {stats['seconds']:.0f} s")
     for p, curve in enumerate(stats["success_per_block"]):
         print(f"  seed {p} successes per block: {np.round(curve[:blocks], 3).tolist()}")
-        policy = learned(learner.group_view(name, p), low_level_tile_coder())
+        policy = learned(learner.group_view(name, p), subtask_coder(a.subtask, params))
         report(f"seed {p}, mean action", *run(a.subtask, policy, a.starts, seed=p))
 
 

@@ -433,10 +433,14 @@ class HPGRLLearner(Learner):
         cell = batch["learner"][:, None] * len(self.group_names) + torch.take(
             self.node_group, node
         ).clamp(0)
-        apply_traces(self, rows, valid if cfg.online else ended, self.alpha(step), cell)
+        self.apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
         if cfg.frozen:  # (cycles ended per learner and group)
             self.cycles.view(-1).index_add_(0, cell.view(-1), ended.view(-1).float())
         rows["count"] = count.masked_fill(ended, 0)
+
+    def apply_traces(self, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
+        """Line 16 over the rings of the pairs ``pairs [B, S]`` (``pg_traces.apply_traces``)."""
+        apply_traces(self, rows, pairs, alpha, cell)
 
     def _check_overflow(self, over: torch.Tensor, node: torch.Tensor) -> None:
         """Raise (or, deferred, latch) a (row, depth) whose ring is full ``over [B, S]``."""

@@ -45,11 +45,15 @@ def test_harmonic_on_a_device_clock_gives_the_float_values_without_a_read():
         assert value.dtype == torch.float64 and float(value) == alpha(step)
 
 
-def test_low_level_rule_is_algorithm_3_as_written():
+def test_low_level_rule_is_equation_5_2_with_beta_1_less_a_state_baseline():
     cfg = low_level_config()
-    assert cfg.online and cfg.beta == 1.0 and cfg.baseline == 0.0
+    # beta = 1 (Equation 5.3); the cycle's sum at the renewal, where R_n - V(s_n) is known
+    assert not cfg.online and cfg.beta == 1.0 and cfg.baseline == 0.0
+    assert TEXT.pg_value_rate > 0 and TEXT.features == "bearing"
     assert isinstance(cfg.alpha, Harmonic)
-    other = low_level_config(replace(TEXT, pg_beta=0.95, pg_online=False))  # comparisons only
+    every_step = low_level_config(replace(TEXT, pg_online=True, pg_value_rate=0.0))
+    assert every_step.online and every_step.beta == 1.0  # line 16 as written, for comparison
+    other = low_level_config(replace(TEXT, pg_beta=0.95))  # comparisons only
     assert not other.online and other.beta == 0.95
 
 
@@ -70,7 +74,7 @@ def test_subtask_env_starts_at_the_local_start_and_ends_on_goal_or_box():
 
 
 def test_low_level_updates_every_step_before_the_invocation_ends():
-    learner = make_subtask_learner(0, 1)
+    learner = make_subtask_learner(0, 1, replace(TEXT, pg_online=True, pg_value_rate=0.0))
     env = ShipSubtaskEnv(0, [0], 4)
     agent = HierarchicalAgent(learner.graph, learner, Greedy(), BatchRNG([0], 4, "t"), 4)
     action = agent.start(env.reset())
@@ -126,3 +130,105 @@ def test_text_variants_build_and_step(algo):
     pg = learner.pg if isinstance(learner, HybridTextLearner) else learner
     assert math.isfinite(float(pg.theta.abs().sum()))
     assert spec.envs_per_learner == 64
+
+
+def test_bearing_coder_tiles_the_heading_error_to_the_goal():
+    from agents.ship import bearing, low_level_tile_coder
+    from agents.ship_text import BearingTileCoder, subtask_coder
+
+    coder, plain = BearingTileCoder(LOCAL_GOAL[0]), low_level_tile_coder()
+    g = torch.Generator().manual_seed(0)
+    state = torch.rand(64, 4, generator=g) * torch.tensor([150.0, 150.0, 360.0, 30.0])
+    state -= torch.tensor([0.0, 0.0, 180.0, 15.0])
+    error = state[:, 2] - bearing(state[:, :2], LOCAL_GOAL[0].expand(64, 2))
+    mapped = torch.cat([state[:, :2], ((error + 180) % 360 - 180)[:, None], state[:, 3:]], 1)
+    assert torch.equal(coder(state), plain(mapped))
+    # heading straight at the goal from two places: the same heading tiles, other places
+    at = torch.tensor([[40.0, 40.0, 45.0, 0.0], [140.0, 40.0, 0.0, 0.0]])
+    assert not torch.equal(plain(at)[0], plain(at)[1]) and coder(at).shape == (2, 9)
+    assert isinstance(subtask_coder(1, replace(TEXT, features="bearing")), BearingTileCoder)
+    with pytest.raises(ValueError, match="features"):
+        subtask_coder(0, replace(TEXT, features="polar"))
+
+
+def _subtask_run(params, setup, steps=60):
+    """``theta`` after ``steps`` steps of the diagonal subtask (2 envs, fixed streams)."""
+    learner = make_subtask_learner(0, 1, params)
+    setup(learner)
+    env = ShipSubtaskEnv(0, [3], 2)
+    agent = HierarchicalAgent(learner.graph, learner, Greedy(), BatchRNG([3], 2, "t"), 2)
+    action = agent.start(env.reset())
+    ended = 0
+    for _ in range(steps):
+        td = env.step(action)
+        ended += int(td["terminated"].sum() + td["truncated"].sum())
+        action = agent.step(td)
+    return learner, ended
+
+
+def test_state_baseline_with_a_constant_table_is_the_constant_baseline():
+    # V(s) = c everywhere must give Equation 5.2 less b = c: PGConfig.baseline's rule
+    c, tiny = -30.0, 1e-30
+    base = replace(TEXT, pg_online=False, pg_alpha=0.05, pg_value_rate=0.0)
+    const, n1 = _subtask_run(
+        replace(base, pg_baseline=tiny), lambda m: m.reward_to_go_mean.fill_(c)
+    )
+    state, n2 = _subtask_run(
+        replace(base, pg_value_rate=tiny), lambda m: m.value_table[:-1].fill_(c)
+    )
+    plain, _ = _subtask_run(base, lambda m: None)
+    assert n1 == n2 > 0  # invocations ended, so both rules updated
+    assert torch.allclose(const.theta, state.theta, atol=1e-5)
+    assert not torch.allclose(plain.theta, state.theta, atol=1e-3)  # the baseline mattered
+
+
+def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
+    params = replace(TEXT, pg_value_rate=0.5)
+    learner, ended = _subtask_run(params, lambda m: None, steps=120)
+    assert ended > 0
+    first, _ = _subtask_run(params, lambda m: None, steps=2)
+    assert first.theta.abs().sum() == 0  # nothing ended yet: no update before the renewal
+    table = learner.value_table[:-1]
+    assert (table < 0).sum() > 0 and table.max() <= 0  # -1 a step: every return so far < 0
+    assert learner.value_table[-1] == 0  # the sentinel
+    with pytest.raises(ValueError, match="pg_online=False"):
+        make_subtask_learner(0, 1, replace(TEXT, pg_online=True, pg_value_rate=0.1))
+
+
+def test_low_level_success_counts_the_executions_that_ended_on_their_own():
+    from agents.ship import ShipMonitor
+
+    spec = DOMAIN.algos["hybrid-text"]
+    graph = spec.make_graph()
+    learner = spec.make_learner(graph, 1)
+    assert not learner.monitor.count_cut
+    every = ShipMonitor(graph, 1)  # today's count: a cut execution is a failure
+    observe = learner.monitor.observe
+
+    def both(batch):
+        every.observe(batch)
+        return observe(batch)
+
+    learner.monitor.observe = both
+    env = DOMAIN.make_env([0], 32)
+    explore = spec.make_exploration(spec.train)
+    agent = HierarchicalAgent(graph, learner, explore, BatchRNG([0], 32, "t"), 32, spec.executor)
+    action = agent.start(env.reset())
+    for _ in range(150):
+        action = agent.step(env.step(action))
+    ended = int(every.episodes.events.sum())
+    pairs = zip(every.low, learner.monitor.low, strict=True)
+    cut = sum(int(a.events.sum() - b.events.sum()) for a, b in pairs)
+    assert ended > 0 and cut == ended  # each episode's end cuts the one running execution
+
+
+def test_state_baseline_static_rows_match_the_compacted_rows():
+    # off the CPU every ring is read with static shapes: the same sums
+    def static(m):
+        m.static_rows = True
+
+    compact, n1 = _subtask_run(TEXT, lambda m: None, steps=120)
+    dense, n2 = _subtask_run(TEXT, static, steps=120)
+    assert n1 == n2 > 0 and compact.value_table.abs().sum() > 0
+    assert torch.allclose(compact.theta, dense.theta, atol=1e-5)
+    assert torch.allclose(compact.value_table, dense.value_table, atol=1e-4)
