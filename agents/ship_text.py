@@ -55,7 +55,7 @@ from hrl_torch.exploration import TriggeredEpsilon
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.hybrid import HybridLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
-from hrl_torch.learners.pg_traces import _weights
+from hrl_torch.learners.pg_traces import entry_weights, static_pass
 from hrl_torch.learners.q_lambda import QLambdaLearner
 from hrl_torch.policies import TileGaussianPolicyHead
 from hrl_torch.tiles import TileCoder
@@ -255,7 +255,7 @@ def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> No
     ``value_rate`` times the mean of ``R_n - V(s_n)`` over the entries that hit it.
     """
     k1, width = learner.config.trace_len + 1, learner.width
-    if learner.static(pairs.device):  # every pair, the others weigh 0 (no host read)
+    if static_pass(learner, pairs):  # every pair, the others weigh 0 (no host read)
         pair, chosen = torch.arange(pairs.numel(), device=pairs.device), pairs.reshape(-1)
     else:
         pair = pairs.reshape(-1).nonzero().squeeze(1)
@@ -264,7 +264,8 @@ def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> No
         chosen = torch.ones_like(pair, dtype=torch.bool)
     count = rows["count"].view(-1)[pair]
     filled = (torch.arange(k1, device=pair.device) < count[:, None]) & chosen[:, None]
-    togo = _weights(learner, count, rows["reward"].view(-1, k1)[pair], filled, cell.view(-1)[pair])
+    reward = rows["reward"].view(-1, k1)[pair]
+    togo = entry_weights(learner, count, reward, filled, cell.view(-1)[pair])
     index = rows["index"].view(-1, k1, width)[pair]  # [n, K + 1, T] (stale entries in range)
     table = learner.value_table
     advantage = torch.where(filled, togo.float() - table[index].mean(-1), 0.0)

@@ -26,7 +26,7 @@ def ring_entries(learner, rows: int) -> int:
     return rows * len(learner.depths) * (learner.config.trace_len + 1)
 
 
-def _static(learner, pairs: torch.Tensor) -> bool:
+def static_pass(learner, pairs: torch.Tensor) -> bool:
     """Whether ``apply_traces`` takes the static pass (``STATIC_RING_ENTRIES``)."""
     if learner.static_rows is not None:
         return learner.static_rows
@@ -34,7 +34,7 @@ def _static(learner, pairs: torch.Tensor) -> bool:
     return static_shapes(pairs.device) and entries <= STATIC_RING_ENTRIES
 
 
-def _weights(learner, count, reward, filled, cell) -> torch.Tensor:
+def entry_weights(learner, count, reward, filled, cell) -> torch.Tensor:
     """``w [n, K + 1]`` (float64) of the ring entries of ``n`` pairs (``reward``: their rings).
 
     Online, after step ``k``: ``w_n = r_k beta^(k - n)`` (line 16 with ``z_{k+1}``).
@@ -65,7 +65,7 @@ def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) 
     ``STATIC_RING_ENTRIES`` (or with ``learner.static_rows``) every ring is read, with static
     shapes; else only the selected pairs' filled entries (``nonzero``: a host read). Same sums.
     """
-    if _static(learner, pairs):
+    if static_pass(learner, pairs):
         _apply_static(learner, rows, pairs, alpha, cell)
         return
     k1 = learner.config.trace_len + 1
@@ -84,7 +84,7 @@ def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) 
     else:
         filled = torch.arange(k1, device=pair.device) < count[:, None]
         reward = lookup(rows["reward"].view(-1, k1), pair)
-        weight = _weights(learner, count, reward, filled, lookup(cell.view(-1), pair))
+        weight = entry_weights(learner, count, reward, filled, lookup(cell.view(-1), pair))
         w = weight[owner, slot].float()
     index = lookup(rows["index"].view(-1, learner.width), entry)
     value = lookup(rows["value"].view(-1, learner.width), entry)
@@ -92,7 +92,7 @@ def apply_traces(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) 
 
 
 def _online_weights(learner, rows, last, count, owner, slot) -> torch.Tensor:
-    """``_weights``' online ``w_n = r_k beta^(k - n)`` at the filled entries only (same values).
+    """``entry_weights``' online ``w_n = r_k beta^(k - n)``, at the filled entries only.
 
     ``last``: each pair's newest ring entry (this step's reward). O(entries), not O(pairs x K).
     """
@@ -109,7 +109,7 @@ def _apply_static(learner, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor)
     k1 = learner.config.trace_len + 1
     count = rows["count"].view(-1)
     filled = (torch.arange(k1, device=count.device) < count[:, None]) & pairs.view(-1, 1)
-    weight = _weights(learner, count, rows["reward"].view(-1, k1), filled, cell.reshape(-1))
+    weight = entry_weights(learner, count, rows["reward"].view(-1, k1), filled, cell.reshape(-1))
     w = torch.where(filled, weight, 0.0).float()
     # (an entry past its pair's count holds a stale index in range, ``update`` clamps what it
     # writes, and a finite value: it adds 0)
