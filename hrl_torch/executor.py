@@ -395,7 +395,7 @@ class HierarchicalExecutor:
             child_ended = popped.roll(-1, 1)  # (the last level never chooses: no wrap-around)
             if transitions:
                 ends = (own | env_ended, ended_own)
-                batch = self._emit(f, step, ctx, chose, child_ended, ends, is_prim, stepped, bad)
+                batch = _emit(self, f, step, ctx, chose, child_ended, ends, is_prim, stepped, bad)
             if self.config.record_visited:
                 self.writer.record_visits(f, chose & ~child_ended, ctx, node)
 
@@ -406,23 +406,6 @@ class HierarchicalExecutor:
         f["done"] = (term | trunc) & real
         self._replace(f)
         return batch
-
-    def _emit(self, f: dict, step: dict, ctx, chose, child_ended, ends, is_prim, stepped, bad):
-        """``observe``'s finished transitions (``TransitionWriter.emit``).
-
-        ``ends``: the levels that terminated or saw the episode end, and ``ended_own``.
-        """
-        if not self.sums:
-            raise ValueError("an executor without sums (sums=False) emits no transitions")
-        emit = chose & child_ended
-        taught = stepped  # rows whose primitive step is a transition
-        if bad is not None:  # ... and teaches nothing
-            emit, taught = emit & ~bad[:, None], stepped & ~bad
-        ran = is_prim if bad is None else is_prim & ~bad[:, None]  # the primitive, if it teaches
-        child_done = ends[1].roll(-1, 1) & emit
-        return self.writer.emit(
-            f, step, ctx, emit, child_done, ends[0] & chose, step["truncated"], taught, ran
-        )
 
     def _bad_steps(self, step: dict, f: dict):
         """Rewards must be finite and durations finite and >= 0 (else tables fill with inf/NaN).
@@ -531,6 +514,24 @@ class HierarchicalExecutor:
         self.invoked = invoked.to(self.device).clone()
         obs = state["obs"]
         self._obs = TensorDict(obs, batch_size=[self.batch_size]) if obs else None
+
+
+def _emit(executor, f: dict, step: dict, ctx, chose, child_ended, ends, is_prim, stepped, bad):
+    """``HierarchicalExecutor.observe``'s finished transitions (``TransitionWriter.emit``).
+
+    ``ends``: the levels that terminated or saw the episode end, and ``ended_own``.
+    """
+    if not executor.sums:
+        raise ValueError("an executor without sums (sums=False) emits no transitions")
+    emit = chose & child_ended
+    taught = stepped  # rows whose primitive step is a transition
+    if bad is not None:  # ... and teaches nothing
+        emit, taught = emit & ~bad[:, None], stepped & ~bad
+    ran = is_prim if bad is None else is_prim & ~bad[:, None]  # the primitive, if it teaches
+    child_done = ends[1].roll(-1, 1) & emit
+    return executor.writer.emit(
+        f, step, ctx, emit, child_done, ends[0] & chose, step["truncated"], taught, ran
+    )
 
 
 def _memory_feature_depth(graph: TaskGraph) -> int:

@@ -89,10 +89,8 @@ class Trainer:
         self.rows = env.learner_of_row()
         self.source = (CollectedSteps if collector else DirectSteps)(env.batch_size, self.agent)
         self.deferred = defer_checks(env, self.agent.executor, self.learner)  # (docs/bad-input.md)
-        skip = self.executor_config.on_bad_step == "skip"
-        self.episodes = EpisodeTracker(
-            env.batch_size, self.P, self.E, self.config.success_key, env.device, skip
-        )
+        skip, success = self.executor_config.on_bad_step == "skip", self.config.success_key
+        self.episodes = EpisodeTracker(env.batch_size, self.P, self.E, success, env.device, skip)
         self.history = EvalHistory(self.P)
         self.curve = self.history.curve  # ``(step, per-learner value)`` of every evaluation
         self.counters = LoopCounters(self.agent, self.P, self.config.eval_every, env.device)
@@ -220,18 +218,12 @@ class Trainer:
     def evaluate(self, learners=None) -> tuple[torch.Tensor, torch.Tensor]:
         """The evaluator's two numbers per learner ``[P]`` (episodic: return and success).
 
-        (The mean episode length per learner is kept in ``last_eval_steps``, every episode in
-        ``last_eval_records``: see ``evaluate_episodes``.) ``learners``: evaluate only these
-        (indices; the episodic evaluator): theirs are the numbers a full evaluation gives,
-        the others' NaN (e.g. a search for the first step at a threshold skips the learners
-        that reached it).
+        (Mean episode lengths in ``last_eval_steps``, every episode in ``last_eval_records``.)
+        ``learners`` (episodic only): evaluate just these; the others' numbers are NaN.
         """
-        if learners is None:
-            values = self.evaluator.evaluate(self)
-        elif isinstance(self.evaluator, EpisodicEvaluator):
-            values = self.evaluator.evaluate(self, learners)
-        else:
+        if learners is not None and not isinstance(self.evaluator, EpisodicEvaluator):
             raise ValueError("only the episodic evaluator evaluates some learners (learners=)")
+        values = self.evaluator.evaluate(self, *(() if learners is None else (learners,)))
         self.last_eval_records = self.evaluator.last_records
         steps = self.evaluator.last_steps
         self.last_eval_steps = torch.full((self.P,), float("nan")) if steps is None else steps

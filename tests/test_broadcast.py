@@ -31,6 +31,7 @@ def seen_codes(broadcast: str, steps: int = 7) -> list[list[int]]:
         2,
         cooperation=cooperation,
         learn=False,
+        transitions=True,  # (the stacks keep the start states only where transitions are made)
     )
     agent.set_policy(AgentIndexPolicy())
     action = agent.start(env.reset())
