@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
+from hrl_torch.devices import constant_on
 from hrl_torch.env import BatchedEnv
 from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.graph import Primitive, Subtask, TaskGraph
@@ -39,8 +40,9 @@ class TwoRoomsEnv(BatchedEnv):
         self.col = torch.where(mask, col, self.col)
 
     def _step_all(self, action):
-        row = (self.row + MOVES[action, 0]).clamp(0, ROWS - 1)
-        col = (self.col + MOVES[action, 1]).clamp(0, COLS - 1)
+        moves = constant_on(MOVES, action.device)  # (the table on the run's device, copied once)
+        row = (self.row + moves[action, 0]).clamp(0, ROWS - 1)
+        col = (self.col + moves[action, 1]).clamp(0, COLS - 1)
         blocked = (col == WALL_COL) & (row != DOOR_ROW)
         self.row = torch.where(blocked, self.row, row)
         self.col = torch.where(blocked, self.col, col)

@@ -240,3 +240,21 @@ def test_an_eager_step_off_the_cpu_copies_nothing_from_the_host(domain, algo):
         trainer.train_step()
     counter = count_train_step(trainer, 70, stacks=True)  # (BatchRNG.AHEAD = 64)
     assert dict(counter.where) == {}
+
+
+def test_the_documented_two_rooms_example_replays_on_meta():
+    """The walkthrough's env (docs/your-own-hierarchy.md) keeps the any-device rules."""
+    from hrl_torch.exploration import EpsilonGreedy
+    from hrl_torch.learners import MaxQLearner
+    from hrl_torch.trainer import TrainConfig, Trainer
+    from scripts.example_two_rooms import TwoRoomsEnv, two_rooms_hierarchy
+
+    graph = two_rooms_hierarchy()
+    learner = MaxQLearner(graph, 2, alpha=0.5, gamma=1.0).to("meta")
+    env = TwoRoomsEnv([0, 1], envs_per_learner=2).to("meta")
+    config = TrainConfig(steps=10, eval_every=0, progress=False)
+    trainer = Trainer(env, graph.to("meta"), learner, EpsilonGreedy(0.1), config)
+    step = StepGraph(trainer.train_step, trainer, backend="trace")
+    for _ in range(step.warmup + 2):
+        step()
+    assert step.failed is None and step.graph is not None
