@@ -591,6 +591,11 @@ def make_flat_pg(graph: TaskGraph, n_learners: int, params: ShipHyperparams = PA
     config = PGConfig(
         alpha=params.flat_alpha, sigma=params.sigma, online=params.online, trace_len=1000
     )
+    return flat_pg_learner(graph, n_learners, config)
+
+
+def flat_pg_learner(graph: TaskGraph, n_learners: int, config: PGConfig) -> FlatPGRL:
+    """Flat PGRL with ``config`` on ``flat_tile_coder``'s features, watched by a ``ShipMonitor``."""
     learner = FlatPGRL(graph, n_learners, config, ["Root"], flat_tile_coder())
     learner.monitor = ShipMonitor(graph, n_learners)
     return learner
@@ -611,13 +616,16 @@ def make_actor_critic(
     graph: TaskGraph, n_learners: int, params: ShipHyperparams = PARAMS
 ) -> ShipActorCritic:
     """Actor-critic (Konda): flat PGRL's actor, a 5-D tile-coded Q(s, a) critic."""
+    actor = PGConfig(alpha=params.actor_alpha, sigma=params.sigma)
+    return actor_critic_learner(graph, n_learners, actor, params.critic_alpha)
+
+
+def actor_critic_learner(
+    graph: TaskGraph, n_learners: int, actor: PGConfig, critic_alpha: float
+) -> ShipActorCritic:
+    """``ShipActorCritic`` with the actor's ``PGConfig``, watched by a ``ShipMonitor``."""
     learner = ShipActorCritic(
-        graph,
-        n_learners,
-        flat_tile_coder(),
-        critic_tile_coder(),
-        PGConfig(alpha=params.actor_alpha, sigma=params.sigma),
-        params.critic_alpha,
+        graph, n_learners, flat_tile_coder(), critic_tile_coder(), actor, critic_alpha
     )
     learner.monitor = ShipMonitor(graph, n_learners)
     return learner

@@ -41,9 +41,9 @@ from agents.ship import (
     FlatPGRL,
     ShipActorCritic,
     ShipMonitor,
-    critic_tile_coder,
+    actor_critic_learner,
     direction_groups,
-    flat_tile_coder,
+    flat_pg_learner,
     local_failure,
     local_success,
     low_level_feature_rewards,
@@ -466,25 +466,15 @@ def make_flat_pg_text(graph: TaskGraph, n_learners: int, params: TextParams = TE
         beta=1.0,
         trace_len=1000,
     )
-    learner = FlatPGRL(graph, n_learners, config, ["Root"], flat_tile_coder())
-    learner.monitor = ShipMonitor(graph, n_learners)
-    return learner
+    return flat_pg_learner(graph, n_learners, config)
 
 
 def make_actor_critic_text(
     graph: TaskGraph, n_learners: int, params: TextParams = TEXT
 ) -> ShipActorCritic:
     """Today's actor-critic with the decaying actor step size of the other -text variants."""
-    learner = ShipActorCritic(
-        graph,
-        n_learners,
-        flat_tile_coder(),
-        critic_tile_coder(),
-        PGConfig(alpha=Harmonic(params.flat_alpha, params.flat_tau), sigma=params.sigma),
-        params.critic_alpha,
-    )
-    learner.monitor = ShipMonitor(graph, n_learners)
-    return learner
+    actor = PGConfig(alpha=Harmonic(params.flat_alpha, params.flat_tau), sigma=params.sigma)
+    return actor_critic_learner(graph, n_learners, actor, params.critic_alpha)
 
 
 def with_overrides(**changes) -> TextParams:

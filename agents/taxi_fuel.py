@@ -67,15 +67,19 @@ class NavigateToFuel(Navigate):
         self.target_loc.fill_(FUEL_LOC)
 
 
-def taxi_fuel_hierarchy() -> TaskGraph:
-    """Dietterich's taxi graph with Refuel (see the module docstring)."""
+def taxi_fuel_hierarchy(root: Subtask | None = None) -> TaskGraph:
+    """Dietterich's taxi graph with Refuel (see the module docstring).
+
+    ``root``: another Root over ``Get``, ``Put`` and ``Refuel`` (another abstraction).
+    """
     navs = [Navigate(t) for t in range(4)]
-    root = Subtask(
-        "Root",
-        ["Get", "Put", "Refuel"],
-        n_states=5 * 4 * N_FUEL,
-        abstract=lambda o: (o["passenger"] * 4 + o["destination"]) * N_FUEL + o["fuel"],
-    )
+    if root is None:
+        root = Subtask(
+            "Root",
+            ["Get", "Put", "Refuel"],
+            n_states=5 * 4 * N_FUEL,
+            abstract=lambda o: (o["passenger"] * 4 + o["destination"]) * N_FUEL + o["fuel"],
+        )
     get, put = get_and_put([n.name for n in navs])
     refuel = Subtask(
         "Refuel",

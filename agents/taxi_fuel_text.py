@@ -32,10 +32,9 @@ from agents.taxi import (
     _bind,
     epsilon_first_third,
     flat_graph,
-    get_and_put,
     taxi_primitives,
 )
-from agents.taxi_fuel import HPGRL_PG, NavigateToFuel
+from agents.taxi_fuel import HPGRL_PG, NavigateToFuel, taxi_fuel_hierarchy
 from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
 from hrl_torch.config import Make
 from hrl_torch.continuing import ThroughputEvaluator
@@ -58,21 +57,10 @@ MAXQ_EXPLORATION = linear_epsilon(1.0, 0.01, Fraction(1, 3))
 
 def text_hierarchy() -> TaskGraph:
     """Dietterich's taxi graph with Refuel; the root over the full 8,750-state index."""
-    navs = [Navigate(t) for t in range(4)]
     root = Subtask(
         "Root", ["Get", "Put", "Refuel"], n_states=N_STATES, abstract=lambda o: o["observation"]
     )
-    get, put = get_and_put([n.name for n in navs])
-    refuel = Subtask(
-        "Refuel",
-        ["Navigate_F", "Fillup"],
-        n_states=25,
-        abstract=lambda o: o["taxi_loc"],
-        terminated=lambda o: o["fuel"] == CAPACITY,
-    )
-    prims = [*taxi_primitives(), Primitive("Fillup", 6, 25, lambda o: o["taxi_loc"])]
-    nodes = [root, get, put, refuel, *navs, NavigateToFuel(), *prims]
-    return TaskGraph("Root", nodes, n_actions=N_ACTIONS)
+    return taxi_fuel_hierarchy(root)
 
 
 F = FACTORS["fuel_level"]
