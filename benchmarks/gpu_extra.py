@@ -13,6 +13,9 @@ Parts (``--parts``, comma-separated):
 * ``ship``: the ship hybrid replayed against eager with static and with compacted rings
   (``pg_traces.STATIC_RING_ENTRIES``).
 * ``breakdown``: the CUDA kernels and aten ops that take a taxi step's time at 1000 x 1024.
+* ``evaluation``: one greedy evaluation (taxi MAXQ-Q, 1000 seeds x 100 episodes; small-AGV
+  HAR, 100 seeds x 4), reading every step with immediate checks (the CPU's way) against
+  deferred checks read every ``evaluation.READ_EVERY`` steps; the same numbers, seconds each.
 
 Run from the project root with the project on ``PYTHONPATH``; writes ``--out``/gpu_extra.json.
 """
@@ -212,6 +215,38 @@ def breakdown(device: str, steps: int = 5) -> list[dict]:
     return [r]
 
 
+def evaluation(device: str) -> list[dict]:
+    """One evaluation, the CPU's way (a read every step) against the off-CPU way, in turn."""
+    from hrl_torch import devices
+
+    out = []
+    for domain, algo, seeds, episodes in (
+        ("taxi", "maxq-q", 1000, 100),
+        ("small-agv", "har", 100, 4),
+    ):
+        t = _trainer(domain, algo, seeds, 8, device, False, eval_episodes=episodes)
+        for _ in range(40):
+            t.train_step()
+        _short_evaluation(t, 2000)
+        found = {}
+        for way, static in (("every step", False), ("deferred", None), ("every step", False)):
+            devices.STATIC_SHAPES = static
+            try:
+                _sync(device)
+                start = time.perf_counter()
+                mean = t.evaluate()[0].tolist()
+                seconds = time.perf_counter() - start
+            finally:
+                devices.STATIC_SHAPES = None
+            same = found.setdefault("mean", mean) == mean
+            r = {"part": "evaluation", "domain": domain, "algo": algo, "seeds": seeds}
+            r |= {"episodes": episodes, "way": way, "seconds": seconds, "same": same}
+            print(json.dumps(r), flush=True)
+            out.append(r)
+        torch.cuda.empty_cache()
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--device", default="cuda")
@@ -239,6 +274,8 @@ def main(argv=None) -> int:
             results += ship(a.device, a.seconds)
         elif part == "breakdown":
             results += breakdown(a.device)
+        elif part == "evaluation":
+            results += evaluation(a.device)
         else:
             raise SystemExit(f"unknown part {part!r}")
         (Path(a.out) / "gpu_extra.json").write_text(json.dumps(results, indent=1))

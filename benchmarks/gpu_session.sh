@@ -2,7 +2,7 @@
 # Issue 27's whole GPU check in one call of a lent machine (torch + CUDA there, no internet).
 # From the project root, with the wheels of /work/shared/gpu/fetch_wheels.sh carried in .whl/:
 #   benchmarks/gpu_session.sh OUT
-# Phases, each under its own time limit (T_CHECK, T_K, T_SHIP, T_SIZES, T_TESTS, T_SMOKE) so
+# Phases, each under its own time limit (T_CHECK, T_K, T_SHIP, T_EVAL, T_SIZES, T_TESTS, T_SMOKE) so
 # that one hang loses only itself: the timings of gpu_check.py (the Must-show numbers), host
 # syncs and kernels per step, the ship's ring passes and where a taxi step's time goes, more
 # sizes, then every registered configuration (gpu_extra.py smoke) beside the device tests.
@@ -10,7 +10,7 @@
 # Everything printed goes to OUT/log.txt; each part writes its JSON under OUT.
 set -u
 out=${1:-gpu_out}
-mkdir -p "$out"/k "$out"/sizes "$out"/smoke
+mkdir -p "$out"/k "$out"/sizes "$out"/smoke "$out"/eval
 export PYTHONUNBUFFERED=1 RL_LOGGING_LEVEL=WARNING
 log="$out/log.txt"
 if ! python3 -c "import tensordict, torchrl" 2>/dev/null; then
@@ -35,6 +35,7 @@ phase "${T_CHECK:-120}" check python3 benchmarks/gpu_check.py --device cuda \
   --parts equal,taxi1,taxi,threshold,threshold64 --out "$out"
 phase "${T_K:-60}" syncs-kernels $x --parts syncs,kernels --out "$out/k"
 phase "${T_SHIP:-70}" ship-breakdown $x --parts ship,breakdown --out "$out/sizes"
+phase "${T_EVAL:-60}" evaluation $x --parts evaluation --out "$out/eval"
 phase "${T_SIZES:-60}" sizes $x --parts sizes --pairs taxi/maxq-q,small-agv/har \
   --shapes 10x512,100x2048 --out "$out/sizes"
 # correctness, side by side (timings no longer matter)

@@ -120,6 +120,8 @@ def _run(args: argparse.Namespace) -> int:
         return _list(args.timed)
     if args.command == "eval":
         return _evaluate(args)
+    if args.command == "check":
+        return _check(args.domain, args.algo)
     if args.command == "sweep":
         from hrl_torch.population_grid import run_population_command
         from hrl_torch.sweep import run_sweep_command
@@ -178,6 +180,33 @@ def _list(timed: bool) -> int:
                 budget += f", training about {shown} s per seed here"
             print(f"    --algo {algo}: {spec.description} [{budget}]", flush=True)
     return 0
+
+
+def _check(name: str, algo: str | None) -> int:
+    """``hrl-torch check``: the env contract and the any-device rules of each algorithm."""
+    from hrl_torch import registry
+    from hrl_torch.devicecheck import check_domain
+    from hrl_torch.envcheck import EnvContractError
+    from hrl_torch.experiment import check_domain_env
+
+    try:
+        domain = registry.get(name)
+    except (KeyError, ValueError) as err:
+        raise UserError(str(err).strip('"')) from err
+    if algo is not None and algo not in domain.algos:
+        raise UserError(f"--algo {algo}: {name} has {', '.join(sorted(domain.algos))}")
+    broken = 0
+    for a in [algo] if algo else sorted(domain.algos):
+        try:
+            check_domain_env(domain, a)
+            findings = check_domain(domain, a).findings
+        except EnvContractError as err:
+            findings = [str(err)]
+        broken += bool(findings)
+        print(f"{name} --algo {a}: " + ("ok" if not findings else f"{len(findings)} finding(s)"))
+        for finding in findings:
+            print(f"  - {finding}", flush=True)
+    return 1 if broken else 0
 
 
 def _training_seconds(domain, algo: str, steps: int = 10) -> float:

@@ -80,7 +80,14 @@ def parser(version: str) -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--worst", type=int_at_least(0), default=10, help="episodes to show (default: 10)"
     )
-    for p in (top, train, evaluate, sweep):
+    check = sub.add_parser(
+        "check",
+        help="check a domain's env contract and, without a GPU, that its training step runs "
+        "on any device with no host read (docs/your-own-hierarchy.md)",
+    )
+    check.add_argument("domain", help="a name `hrl-torch list` shows")
+    check.add_argument("--algo", default=None, help="one algorithm (default: every one)")
+    for p in (top, train, evaluate, sweep, check):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return top
 

@@ -32,6 +32,8 @@ import torch
 from tensordict import TensorDict
 from tqdm import tqdm
 
+from hrl_torch.deferred import deferred_meanwhile, raise_pending
+from hrl_torch.devices import static_shapes
 from hrl_torch.evaluation import Evaluator
 from hrl_torch.ops import argmax_last
 
@@ -96,6 +98,20 @@ class ThroughputEvaluator(Evaluator):
         n_steps = self.max_steps if self.horizon_time else self.burn_in + self.horizon
         agent.freeze_values(n_steps)  # the tables are frozen: values per state once
         action = agent.start(env.reset())
+        if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
+            with deferred_meanwhile(env, agent.executor) as checks:
+                sums = self._play(trainer, agent, env, action, n_steps, checks)
+        else:
+            sums = self._play(trainer, agent, env, action, n_steps, [])
+        per_learner = sums.view(self._n_sums, -1, env.envs_per_learner).sum(-1).cpu()
+        throughput, rate = _rates(per_learner, self.scale)
+        self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
+        if self.ratio is not None:
+            self.last_eval[self.ratio_tags[0]] = _ratio(per_learner).tolist()
+        return throughput, rate
+
+    def _play(self, trainer, agent, env, action, n_steps: int, checks: list) -> torch.Tensor:
+        """``[n_sums, B]``: the amounts of the window's steps (``checks`` read every 100)."""
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
@@ -104,6 +120,8 @@ class ThroughputEvaluator(Evaluator):
         for k in range(n_steps):
             bar.update(1)
             td = env.step(action)
+            if k % 100 == 99:
+                raise_pending(checks)
             if self.horizon_time:  # the window is a span of time: count what starts in it
                 count = (clock >= self.burn_in_time) & (clock < end)
                 clock = clock + td["duration"]
@@ -114,12 +132,8 @@ class ThroughputEvaluator(Evaluator):
             sums += self._amounts(td) * count
             action = agent.step(td)
         bar.close()
-        per_learner = sums.view(self._n_sums, -1, env.envs_per_learner).sum(-1).cpu()
-        throughput, rate = _rates(per_learner, self.scale)
-        self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
-        if self.ratio is not None:
-            self.last_eval[self.ratio_tags[0]] = _ratio(per_learner).tolist()
-        return throughput, rate
+        raise_pending(checks)
+        return sums
 
     @property
     def _n_sums(self) -> int:

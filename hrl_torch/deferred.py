@@ -10,7 +10,10 @@ trainer's next host read: its log interval, an evaluation, a checkpoint, the end
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+
+import torch
 
 from hrl_torch.devices import DeferredCheck
 from hrl_torch.env import BatchedEnv
@@ -18,15 +21,20 @@ from hrl_torch.executor import HierarchicalExecutor, SubtaskTimeoutError, bad_st
 from hrl_torch.graph import GraphError
 from hrl_torch.learners.pg import HPGRLLearner
 
-__all__ = ["DeferredCheck", "defer_checks", "raise_pending"]
+__all__ = ["DeferredCheck", "defer_checks", "defer_reads", "deferred_meanwhile", "raise_pending"]
 
 
 def raise_pending(checks: Iterable[DeferredCheck | None]) -> None:
-    """Raise the first latched failure among ``checks`` (one read per check)."""
+    """Raise the first latched failure among ``checks`` (one read for all their flags)."""
+    checks = [c for c in checks if c is not None]
+    latched = [c for c in checks if c.bad is not None]
+    flags = torch.stack([c.bad.any() for c in latched]).tolist() if latched else []
+    failed = {id(c) for c, flag in zip(latched, flags, strict=True) if flag}
     for check in checks:
-        err = None if check is None else check.error()
-        if err is not None:
-            raise err
+        if id(check) in failed:
+            raise check.error()  # (its ``on_read`` runs inside)
+        if check.on_read is not None:
+            check.on_read()
 
 
 def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[DeferredCheck]:
@@ -59,7 +67,8 @@ def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[Defe
         )
 
     def quiet_again() -> None:  # the guard's quiet window anew, at a read the trainer makes
-        if executor.depth > 1:  # (an invocation's steps grow by at most one per step)
+        if executor.depth > 1 and not executor.static_guard:  # (else: no quiet window)
+            # (an invocation's steps grow by at most one per step)
             longest = int(executor.stack.inv_steps[:, 1:].amax())
             executor.guard_quiet = max(limit - longest - 1, 0)
 
@@ -88,3 +97,29 @@ def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[Defe
             module.deferred_overflow = DeferredCheck(module.overflow_error)
             checks.append(module.deferred_overflow)
     return checks
+
+
+def defer_reads(env, executor: HierarchicalExecutor) -> list[DeferredCheck]:
+    """``defer_checks`` for a non-learning agent (a greedy evaluation's): no read per step.
+
+    Its ``executor``'s subtask guard then runs every step too (``static_guard``: a mask).
+    """
+    executor.static_guard = True
+    return defer_checks(env, executor)
+
+
+@contextmanager
+def deferred_meanwhile(env, executor: HierarchicalExecutor) -> Iterator[list[DeferredCheck]]:
+    """``defer_reads`` of ``env`` and ``executor`` for the block (a greedy evaluation's agent).
+
+    The graph is shared with the trainer's agent: its range check, latched by training steps,
+    is put back after the block, and so is ``env``'s action check. (Deferring again inside the
+    block, for a subset of the rows, is fine: each call makes new checks.)
+    """
+    ranges = executor.graph.__dict__.get("deferred_ranges")
+    action = vars(env).get("deferred_action")
+    try:
+        yield defer_reads(env, executor)
+    finally:
+        executor.graph.deferred_ranges = ranges
+        env.deferred_action = action

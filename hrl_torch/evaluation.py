@@ -21,6 +21,8 @@ import torch
 from tensordict import TensorDict
 from tqdm import tqdm
 
+from hrl_torch.deferred import defer_reads, deferred_meanwhile, raise_pending
+from hrl_torch.devices import static_shapes
 from hrl_torch.graph import TaskGraph
 from hrl_torch.ops import entries
 
@@ -127,7 +129,7 @@ class EpisodicEvaluator(Evaluator):
         other rows' records stay at 0 length, unfinished. An env or agent that cannot split
         rows (``subset_safe``, ``HierarchicalAgent.subset``) plays them all.
         """
-        env, cfg, graph = trainer.eval_env, trainer.config, trainer.graph
+        env, cfg = trainer.eval_env, trainer.config
         if env is None:
             raise ValueError("no evaluation env: give the Trainer an eval_env (eval_episodes > 0)")
         if env.rng is not None:
@@ -142,30 +144,65 @@ class EpisodicEvaluator(Evaluator):
             if playing is None:  # nothing to play
                 return episodes.records(start, trainer.env.seeds, env.envs_per_learner)
             agent, env, action = playing
-        decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
-        finite_only = trainer.executor_config.on_bad_step == "skip"
-        bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
-                   disable=not cfg.progress)  # fmt: skip
-        for _ in range(cfg.eval_max_steps):
-            if decisions_on:
-                episodes.record_root_decisions(agent.executor, graph)
-            td = env.step(action)
-            step = entries(td)  # (a plain dict: reading a TensorDict's key costs microseconds)
-            alive = episodes.add(step, counted_reward(step, finite_only), cfg.success_key)
-            bar.update(bar.total - alive - bar.n)  # the episodes finished so far
-            if alive == 0:
+        if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
+            with deferred_meanwhile(env, agent.executor):
+                _play(trainer, agent, env, action, episodes, READ_EVERY)
+        else:
+            _play(trainer, agent, env, action, episodes, 1)
+        return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
+
+
+#: off the CPU, greedy episodes read the device (rows still playing, checks) every this many
+#: steps (on the CPU every step: a read there costs nothing and finished rows stop sooner)
+READ_EVERY = 8
+
+
+def _play(trainer, agent, env, action, episodes: EvalEpisodes, read_every: int) -> None:
+    """Step the greedy episodes to their ends or ``eval_max_steps`` (``episodes.episodes``).
+
+    Every ``read_every`` steps (and at the last) the device is read: how many rows still play
+    (the loop stops at none and steps only those once half have finished) and, if the checks
+    are deferred, whether a step broke one (raised with its immediate message).
+    """
+    cfg, graph = trainer.config, trainer.graph
+    deferred = agent.executor.deferred_bad is not None
+    checks = _deferred_of(env, agent) if deferred else []
+    decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
+    finite_only = trainer.executor_config.on_bad_step == "skip"
+    bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
+               disable=not cfg.progress)  # fmt: skip
+    for t in range(cfg.eval_max_steps):
+        read = (t + 1) % read_every == 0 or t + 1 == cfg.eval_max_steps
+        if decisions_on:
+            episodes.record_root_decisions(agent.executor, graph, read)
+        td = env.step(action)
+        step = entries(td)  # (a plain dict: reading a TensorDict's key costs microseconds)
+        episodes.add(step, counted_reward(step, finite_only), cfg.success_key, read)
+        if read:
+            raise_pending(checks)
+            bar.update(bar.total - episodes.alive - bar.n)  # the episodes finished so far
+            if episodes.alive == 0:
                 break
-            if env.subset_safe and alive <= env.batch_size // 2 and env.batch_size >= 32:
+            if env.subset_safe and episodes.alive <= env.batch_size // 2 and env.batch_size >= 32:
                 keep = (~episodes.now["finished"]).nonzero().squeeze(1)
                 smaller = agent.subset(keep)  # step only the rows still playing from now on
                 if smaller is not None:
                     agent, env, td = smaller, env.subset(keep), td[keep]
                     episodes.compact(keep)
-            action = agent.step(td)
-        bar.close()
-        if decisions_on:
-            episodes.record_root_decisions(agent.executor, graph)
-        return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
+                    checks = defer_reads(env, agent.executor) if deferred else []
+        action = agent.step(td)
+    bar.close()
+    raise_pending(checks)
+    if decisions_on:
+        episodes.record_root_decisions(agent.executor, graph, True)
+
+
+def _deferred_of(env, agent) -> list:
+    """The deferred checks ``deferred_meanwhile`` turned on for ``env`` and ``agent``."""
+    executor = agent.executor
+    found = [executor.deferred_bad, executor.deferred_stuck, executor.deferred_timeout]
+    found += [executor.graph.__dict__.get("deferred_ranges"), vars(env).get("deferred_action")]
+    return [c for c in found if c is not None]
 
 
 class EvalHistory:
@@ -234,34 +271,35 @@ class EvalEpisodes:
         for k, v in self.now.items():
             self.all[k][self.live] = v
 
-    def add(self, td, reward: torch.Tensor, success_key: str) -> int:
+    def add(self, td, reward: torch.Tensor, success_key: str, read: bool = True) -> int:
         """Account one env step of the current rows; how many are still playing.
 
         ``td``: the step (a TensorDict or its ``entries``). (A step where no episode ends only
-        adds to the returns and lengths: success and truncation need an end.)
+        adds to the returns and lengths: success and truncation need an end.) ``read=False``:
+        no read of the device; ``alive`` (returned) is then as of the last read.
         """
         now, playing = self.now, ~self.now["finished"]
         now["return"] += reward * playing
         now["length"].add_(playing)
         ended = td["terminated"] | td["truncated"]
-        if not bool(ended.any()):
+        if read and not bool(ended.any()):
             return self.alive
         now["success"] |= succeeded(td, success_key) & playing
         now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
         now["finished"] |= ended
-        self.alive = playing.shape[0] - int(now["finished"].sum())
+        if read:
+            self.alive = playing.shape[0] - int(now["finished"].sum())
         return self.alive
 
-    def record_root_decisions(self, executor, graph: TaskGraph) -> None:
+    def record_root_decisions(self, executor, graph: TaskGraph, read: bool = True) -> None:
         """After ``act``: the root's new child in each row still playing.
 
-        The first ``MAX_DECISIONS`` are kept, in order. (A step where no root chooses, e.g.
-        while every row loops inside a subtask, writes nothing: the evaluation reads the
-        device every step anyway, for the count of rows still playing.)
+        The first ``MAX_DECISIONS`` are kept, in order. (With ``read``, a step where no root
+        chooses, e.g. while every row loops inside a subtask, is skipped after one read.)
         """
         now = self.now
         new = executor.invoked[:, 1] & ~now["finished"]
-        if not bool(new.any()):
+        if read and not bool(new.any()):
             return
         child = torch.take(graph.inst_node, executor.stack.inst[:, 1].clamp_min(0))
         count = now["n_decisions"]

@@ -91,9 +91,7 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         """Which nodes have internal rewards, custom predicates, features and memory."""
         self.internal_nodes = [k for k, x in enumerate(self.nodes) if x.has_internal_rewards()]
         self.shaping_nodes = [
-            k
-            for k, x in enumerate(self.nodes)
-            if not x.is_primitive and x.has_shaping_rewards()
+            k for k, x in enumerate(self.nodes) if not x.is_primitive and x.has_shaping_rewards()
         ]
         self.check_ranges = True
         self._table_key: str | None = None  # set by ``tabulate``
@@ -198,7 +196,12 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
         abstract = self._node_columns(
-            self._abstract_nodes, torch.long, 0, b, device, lambda k: self._abstract_of(obs, k)
+            self._abstract_nodes,
+            torch.long,
+            0,
+            b,
+            device,
+            _on_device(self, device, "abstract", obs),
         )
         if self.check_ranges:
             self._check_abstract_ranges(abstract)
@@ -208,7 +211,7 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             False,
             b,
             device,
-            lambda k: self._call(self.nodes[k].terminated, obs, memory, k),
+            _on_device(self, device, "terminated", obs, memory),
         )
         initiable = self._node_columns(
             self._initiable_nodes,
@@ -216,7 +219,7 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             True,
             b,
             device,
-            lambda k: self.nodes[k].initiable(obs),
+            _on_device(self, device, "initiable", obs),
         )
         blocked = terminated & ~self.node_event
         available = self._available(obs, initiable & ~blocked)
@@ -362,3 +365,29 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             if value is not None:
                 out[:, k] = value
         return out
+
+
+def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=None):
+    """``k -> node k's method(obs)``, which must be a tensor on the run's ``device``.
+
+    (A tensor a subtask makes on the CPU would otherwise fail later, deep inside the step, or
+    copy to the GPU at every step; the check reads no data.)
+    """
+
+    def value_of(k: int) -> torch.Tensor:
+        if method == "abstract":
+            value = graph._abstract_of(obs, k)
+        elif method == "initiable":
+            value = graph.nodes[k].initiable(obs)
+        else:
+            value = graph._call(graph.nodes[k].terminated, obs, memory, k)
+        if not isinstance(value, torch.Tensor) or value.device != device:
+            got = f"a tensor on {value.device}" if torch.is_tensor(value) else type(value).__name__
+            raise GraphError(
+                f"{graph.names[k]!r}.{method} returned {got}, the run is on {device}: return a "
+                f"tensor made from the observation's (torch.ones_like(...), device=obs[key].device;"
+                f" module-level tables via devices.constant_on)"
+            )
+        return value
+
+    return value_of

@@ -174,14 +174,25 @@ def _host_index(args) -> bool:
 
 
 def _caller() -> str:
-    """``file:line`` of the innermost frame of this project that made the op."""
+    """``dir/file:line`` of the innermost frame outside torch that made the op."""
     import traceback
 
-    for frame in reversed(traceback.extract_stack()):
-        name = frame.filename
-        if ("hrl_torch" in name or "/agents/" in name or "/envs/" in name) and (
-            "sync_count" not in name
-        ):
+    return place(traceback.extract_stack())
+
+
+#: frames inside these are not the code that made an op (``place``)
+_LIBRARY_PARTS = ("/torch/", "/tensordict/", "/sync_count.py", "/devicecheck.py", "/contextlib.py")
+
+
+def place(frames) -> str:
+    """``dir/file:line`` of the innermost of ``frames`` outside torch and the checking code.
+
+    ``frames``: ``traceback.FrameSummary`` items, outermost first. The frame found is the code
+    that made the op: this project's, or a user's own env or subtask.
+    """
+    for frame in reversed(list(frames)):
+        name = frame.filename.replace("\\", "/")
+        if not name.startswith("<") and not any(part in name for part in _LIBRARY_PARTS):
             return f"{name.split('/')[-2]}/{name.split('/')[-1]}:{frame.lineno}"
     return "?"
 

@@ -1,0 +1,197 @@
+"""``check_any_device``: does a run keep the any-device rules? No GPU needed.
+
+A run that works on the CPU can fail, or crawl, on a GPU: a table made on the CPU that a step
+indexes with device tensors, ``TABLE.to(device)`` inside a step (a synchronising copy that a
+CUDA-graph capture refuses), ``.item()`` or ``if tensor:`` in a step (each waits for the GPU).
+``check_any_device(build)`` looks for them in three passes and names, for each finding, the
+file and line of the code that made it (your env's, your subtask's, or this project's):
+
+1. the CPU with the rules a GPU run gets (static shapes, every broadcast round): every host
+   read and data-dependent op of ``steps`` training steps (``sync_count.HostSyncCounter``);
+2. ``meta`` (CUDA's device rules, no data): the run builds and takes ``steps`` eager steps
+   (a tensor left on the CPU or a value read back raises), copying nothing from the host;
+3. ``meta`` again, a fresh run: the step recorded and replayed with a CUDA graph's rules
+   (``cuda_graph.StepGraph``, backend ``"trace"``).
+
+``build(device)`` returns the ``Trainer`` on ``device``, built on the CPU and then moved (what
+``experiment.build_trainer`` does with ``RunOptions.device``). ``hrl-torch check`` runs this on
+a registered domain (docs/your-own-hierarchy.md, "Will it run on a GPU?").
+"""
+
+from __future__ import annotations
+
+import traceback
+import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+from hrl_torch import broadcast, devices
+from hrl_torch.cuda_graph import StepGraph
+from hrl_torch.graph import GraphError
+from hrl_torch.sync_count import HostSyncCounter, place
+
+__all__ = ["DeviceReport", "DeviceRuleError", "check_any_device", "check_domain"]
+
+_READ = (
+    "a value read back to the host (.item(), bool(), int(), float(), `if tensor:`, tolist): "
+    "a GPU step waits here; keep it a tensor (torch.where) or read it at a log interval"
+)
+_SHAPE = (
+    "an op whose output size depends on the data (nonzero, masked_select, x[mask], unique, "
+    "repeat_interleave without output_size): it reads the device; use masks and torch.where"
+)
+#: what each kind of op counted by ``HostSyncCounter`` means, and what to do instead
+HINTS = {
+    "item": _READ,
+    "tolist": _READ,
+    "numpy": _READ,
+    "to_host": "a copy back to the CPU (.cpu(), .to('cpu')): " + _READ.split(": ", 1)[1],
+    "nonzero": _SHAPE,
+    "masked_select": _SHAPE,
+    "bool-index": _SHAPE,
+    "unique": _SHAPE,
+    "repeat_interleave": _SHAPE,
+    "to_device": (
+        "a copy of host data to the device inside the step (TABLE.to(device), "
+        "torch.tensor(data, device=...), a device tensor indexed with CPU indices): it "
+        "synchronises and a CUDA-graph capture refuses it; read module-level tables through "
+        "hrl_torch.devices.constant_on, make new tensors with device= of the step's inputs"
+    ),
+}
+
+
+class DeviceRuleError(RuntimeError):
+    """A run that breaks the any-device rules; ``findings`` lists each break once."""
+
+    def __init__(self, findings: list[str]) -> None:
+        self.findings = list(findings)
+        lines = "\n".join(f"  - {f}" for f in self.findings)
+        n = len(self.findings)
+        super().__init__(f"the run breaks the any-device rules in {n} place(s):\n{lines}")
+
+
+@dataclass
+class DeviceReport:
+    """What ``check_any_device`` found: one line per place (empty: every rule kept)."""
+
+    findings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """No finding."""
+        return not self.findings
+
+    def raise_if_any(self) -> None:
+        """``DeviceRuleError`` listing the findings, if there are any."""
+        if self.findings:
+            raise DeviceRuleError(self.findings)
+
+
+def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceReport:
+    """The three passes of the module docstring over ``steps`` training steps each.
+
+    ``steps``: 70 by default, past the first refill of the random blocks (64 steps).
+    """
+    findings = _reads_on_cpu(build, steps)
+    on_meta = _steps_on_meta(build, steps)
+    findings += [f for f in on_meta if f not in findings]
+    if not on_meta:  # (a run that cannot step on meta cannot be replayed there either)
+        findings += _replay_on_meta(build)
+    return DeviceReport(findings)
+
+
+@contextmanager
+def _off_cpu_rules() -> Iterator[None]:
+    """The CPU with the shape rules a GPU run gets (``devices.STATIC_SHAPES`` and friends)."""
+    saved = devices.STATIC_SHAPES, broadcast.STATIC_ROUNDS
+    devices.STATIC_SHAPES = broadcast.STATIC_ROUNDS = True
+    try:
+        yield
+    finally:
+        devices.STATIC_SHAPES, broadcast.STATIC_ROUNDS = saved
+
+
+def _counted(counter: HostSyncCounter, steps: int, where: str) -> list[str]:
+    """One finding per (kind, place) the counter saw."""
+    out = []
+    for key, n in counter.where.items():
+        kind, at = key.split(" ", 1)
+        out.append(f"{at}: {HINTS.get(kind, kind)} [{kind}, {n} in {steps} steps {where}]")
+    return out
+
+
+def _failure(err: Exception, doing: str) -> str:
+    """A finding for an exception: where it was raised (outside torch) and what it says."""
+    at = place(traceback.extract_tb(err.__traceback__))
+    text = f"{type(err).__name__}: {err}".splitlines()[0]
+    if isinstance(err, GraphError):  # (its message names the subtask and what to do)
+        return f"{at}: {doing} failed: {text}"
+    if "meta" in text and any(w in text for w in ("item", "data", "copy out")):
+        hint = _READ
+    elif "device" in text:
+        hint = "a tensor made or kept on the CPU meets the run's device: " + HINTS["to_device"]
+    else:
+        hint = "see the error"
+    return f"{at}: {doing} failed: {text} ({hint})"
+
+
+def _steps(trainer, steps: int, counter: HostSyncCounter) -> None:
+    for _ in range(3):  # (first uses fill caches: constant tables, random blocks)
+        trainer.train_step()
+    with counter:
+        for _ in range(steps):
+            trainer.train_step()
+
+
+def _reads_on_cpu(build, steps: int) -> list[str]:
+    counter = HostSyncCounter(stacks=True)
+    with _off_cpu_rules():
+        try:
+            _steps(build("cpu"), steps, counter)
+        except Exception as err:  # noqa: BLE001  (reported as a finding)
+            return [_failure(err, "a training step on the CPU with a GPU's shape rules")]
+    return _counted(counter, steps, "on the CPU")
+
+
+def _steps_on_meta(build, steps: int) -> list[str]:
+    try:
+        trainer = build("meta")
+    except Exception as err:  # noqa: BLE001
+        return [_failure(err, "building the run for a device other than the CPU ('meta')")]
+    counter = HostSyncCounter(stacks=True)
+    try:
+        _steps(trainer, steps, counter)
+    except Exception as err:  # noqa: BLE001
+        return [_failure(err, "a training step on 'meta' (CUDA's device rules)")]
+    return _counted(counter, steps, "on 'meta'")
+
+
+def _replay_on_meta(build) -> list[str]:
+    trainer = build("meta")
+    graph = StepGraph(trainer.train_step, trainer, backend="trace")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # (a refusal is reported below)
+            for _ in range(graph.warmup + 2):  # (the warm-up, the capture, one replay)
+                graph()
+    except Exception as err:  # noqa: BLE001
+        return [_failure(err, "replaying the step as a CUDA graph would")]
+    if graph.failed is not None:
+        return [f"the step cannot be replayed as a CUDA graph: {graph.failed}"]
+    return []
+
+
+def check_domain(domain, algo: str, steps: int = 70) -> DeviceReport:
+    """``check_any_device`` of a registered ``domain`` (a ``DomainSpec``) as ``algo`` builds it.
+
+    Two seeds, two env rows each, no evaluation (what ``hrl-torch check`` runs).
+    """
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    def build(device: str):
+        opts = RunOptions(seeds=[0, 1], envs_per_learner=2, eval_episodes=0, device=device)
+        opts.progress = opts.tensorboard = opts.check_env = False
+        return build_trainer(domain, algo, opts)
+
+    return check_any_device(build, steps)

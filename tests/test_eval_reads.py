@@ -1,0 +1,100 @@
+"""Greedy evaluation off the CPU reads the device every few steps, not every step (issue 27).
+
+On the CPU a read costs nothing and the evaluation reads every step (rows still playing,
+immediate checks). Elsewhere each read synchronises, so the evaluation agent's checks are
+deferred (``hrl_torch.deferred.deferred_meanwhile``) and the loop reads every
+``evaluation.READ_EVERY`` steps. ``devices.STATIC_SHAPES = True`` gives the CPU the off-CPU
+rules: the same numbers and records, far fewer reads, the same error messages.
+"""
+
+import pytest
+import torch
+
+import agents  # noqa: F401  (registers the domains)
+from hrl_torch import broadcast, devices, evaluation, registry
+from hrl_torch.executor import BadStepError
+from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.sync_count import HostSyncCounter
+
+CONFIGS = [
+    ("taxi", "maxq-q", 200),  # episodic, tabulated (frozen values, compaction)
+    ("ship-steering", "hybrid", 200),  # episodic, policy gradient below
+    ("small-agv", "har", 0),  # continuing (a throughput window)
+    ("trash", "cooperative", 0),  # multi-agent, the broadcast's rounds
+]
+
+
+@pytest.fixture
+def off_cpu_rules(monkeypatch):
+    """The rules an off-CPU device gets, on the CPU."""
+
+    def set_rules(on: bool) -> None:
+        monkeypatch.setattr(devices, "STATIC_SHAPES", True if on else None)
+        monkeypatch.setattr(broadcast, "STATIC_ROUNDS", True if on else None)
+
+    return set_rules
+
+
+def _trained(domain: str, algo: str, eval_max_steps: int):
+    opts = RunOptions(seeds=[0, 1], envs_per_learner=4, eval_episodes=20)
+    opts.progress = opts.tensorboard = False
+    trainer = build_trainer(registry.get(domain), algo, opts)
+    if eval_max_steps:
+        trainer.config.eval_max_steps = eval_max_steps
+    for _ in range(200):
+        trainer.train_step()
+    return trainer
+
+
+def _evaluate(trainer) -> tuple[list, object, int, int]:
+    """Numbers, records, host reads and env steps of one evaluation."""
+    steps = 0
+    env_step = trainer.eval_env.step
+
+    def counted(action):
+        nonlocal steps
+        steps += 1
+        return env_step(action)
+
+    trainer.eval_env.step = counted
+    with HostSyncCounter() as reads:
+        numbers = [x.tolist() for x in trainer.evaluate()]
+    del trainer.eval_env.step
+    return numbers, trainer.last_eval_records, reads.total, steps
+
+
+@pytest.mark.parametrize(("domain", "algo", "eval_max_steps"), CONFIGS)
+def test_off_the_cpu_the_evaluation_reads_every_few_steps_and_finds_the_same(
+    domain, algo, eval_max_steps, off_cpu_rules
+):
+    results = []
+    for on in (False, True):
+        off_cpu_rules(on)
+        results.append(_evaluate(_trained(domain, algo, eval_max_steps)))
+    (numbers, records, reads, steps), (numbers_off, records_off, reads_off, steps_off) = results
+    assert numbers_off == numbers
+    assert records is None or bool((records_off == records).all())
+    assert reads >= 2 * steps  # (every step: the rows still playing, the checks)
+    # off the CPU: a handful per READ_EVERY steps, and the set-up's few
+    assert reads_off <= 6 * steps_off / evaluation.READ_EVERY + 12
+    assert steps_off <= steps + evaluation.READ_EVERY  # (a read stops it within READ_EVERY)
+
+
+def test_off_the_cpu_a_nan_in_an_evaluation_raises_the_immediate_message(off_cpu_rules):
+    off_cpu_rules(True)
+    trainer = _trained("taxi", "maxq-q", 200)
+    step_all = trainer.eval_env._step_all
+
+    def nan_in_row_3(action):
+        reward, duration, terminated = step_all(action)
+        return reward.index_fill(0, torch.tensor([3]), float("nan")), duration, terminated
+
+    trainer.eval_env._step_all = nan_in_row_3
+    with pytest.raises(BadStepError, match=r"env row 3 returned reward nan and duration"):
+        trainer.evaluate()
+    # the training checks the evaluation set aside are back, and still latch
+    assert trainer.graph.__dict__.get("deferred_ranges") in trainer.deferred
+    assert trainer.eval_env.deferred_action is None
+    trainer.eval_env._step_all = step_all
+    trainer.train_step()
+    assert trainer.evaluate()[0].isfinite().all()
