@@ -266,6 +266,7 @@ class EvalEpisodes:
         self.all = {k: v.clone() for k, v in self.now.items()}
         self.live = torch.arange(batch_size, device=device)
         self.alive = batch_size  # rows of ``now`` still playing
+        self.unread = False  # ``add`` has seen steps since it last counted ``alive``
 
     def _save(self) -> None:
         for k, v in self.now.items():
@@ -282,11 +283,12 @@ class EvalEpisodes:
         now["return"] += reward * playing
         now["length"].add_(playing)
         ended = td["terminated"] | td["truncated"]
-        if read and not bool(ended.any()):
+        if read and not self.unread and not bool(ended.any()):
             return self.alive
         now["success"] |= succeeded(td, success_key) & playing
         now["truncated"] |= td["truncated"] & ~td["terminated"] & playing
         now["finished"] |= ended
+        self.unread = not read  # (rows may have ended since the last count)
         if read:
             self.alive = playing.shape[0] - int(now["finished"].sum())
         return self.alive

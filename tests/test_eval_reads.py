@@ -12,6 +12,7 @@ import torch
 
 import agents  # noqa: F401  (registers the domains)
 from hrl_torch import broadcast, devices, evaluation, registry
+from hrl_torch.evaluation import EvalEpisodes
 from hrl_torch.executor import BadStepError
 from hrl_torch.experiment import RunOptions, build_trainer
 from hrl_torch.sync_count import HostSyncCounter
@@ -98,3 +99,14 @@ def test_off_the_cpu_a_nan_in_an_evaluation_raises_the_immediate_message(off_cpu
     trainer.eval_env._step_all = step_all
     trainer.train_step()
     assert trainer.evaluate()[0].isfinite().all()
+
+
+def test_rows_that_end_between_reads_are_counted_at_the_next_read():
+    episodes = EvalEpisodes(4, "cpu")
+    no = torch.zeros(4, dtype=torch.bool)
+    two_end = {"reward": torch.ones(4), "terminated": torch.tensor([1, 1, 0, 0]).bool()}
+    two_end["truncated"] = no
+    none_end = dict(two_end, terminated=no)
+    assert episodes.add(two_end, two_end["reward"], "terminated", read=False) == 4  # (unread)
+    assert episodes.add(none_end, none_end["reward"], "terminated", read=True) == 2
+    assert episodes.now["return"].tolist() == [1.0, 1.0, 2.0, 2.0]
