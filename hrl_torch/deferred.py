@@ -25,11 +25,13 @@ __all__ = ["DeferredCheck", "defer_checks", "defer_reads", "deferred_meanwhile",
 
 
 def raise_pending(checks: Iterable[DeferredCheck | None]) -> None:
-    """Raise the first latched failure among ``checks`` (one read for all their flags)."""
+    """Raise the first latched failure among ``checks`` (one read for their flags per device)."""
     checks = [c for c in checks if c is not None]
-    latched = [c for c in checks if c.bad is not None]
-    flags = torch.stack([c.bad.any() for c in latched]).tolist() if latched else []
-    failed = {id(c) for c, flag in zip(latched, flags, strict=True) if flag}
+    failed = set()
+    for device in {c.bad.device for c in checks if c.bad is not None}:  # (one read each)
+        latched = [c for c in checks if c.bad is not None and c.bad.device == device]
+        flags = torch.stack([c.bad.any() for c in latched]).tolist()
+        failed |= {id(c) for c, flag in zip(latched, flags, strict=True) if flag}
     for check in checks:
         if id(check) in failed:
             raise check.error()  # (its ``on_read`` runs inside)

@@ -10,8 +10,9 @@ file and line of the code that made it (your env's, your subtask's, or this proj
    read and data-dependent op of ``steps`` training steps (``sync_count.HostSyncCounter``);
 2. ``meta`` (CUDA's device rules, no data): the run builds and takes ``steps`` eager steps
    (a tensor left on the CPU or a value read back raises), copying nothing from the host;
-3. ``meta`` again, a fresh run: the step recorded and replayed with a CUDA graph's rules
-   (``cuda_graph.StepGraph``, backend ``"trace"``).
+3. ``meta`` again, a fresh run, when pass 2 found nothing (what it finds, a capture refuses
+   too): the step recorded and replayed with a CUDA graph's rules (``cuda_graph.StepGraph``,
+   backend ``"trace"``), which also refuses a step whose Python integers move unevenly.
 
 ``build(device)`` returns the ``Trainer`` on ``device``, built on the CPU and then moved (what
 ``experiment.build_trainer`` does with ``RunOptions.device``). ``hrl-torch check`` runs this on
@@ -62,18 +63,21 @@ HINTS = {
 
 
 class DeviceRuleError(RuntimeError):
-    """A run that breaks the any-device rules; ``findings`` lists each break once."""
+    """A run that breaks the any-device rules; ``findings``: one line per place and pass."""
 
     def __init__(self, findings: list[str]) -> None:
         self.findings = list(findings)
         lines = "\n".join(f"  - {f}" for f in self.findings)
         n = len(self.findings)
-        super().__init__(f"the run breaks the any-device rules in {n} place(s):\n{lines}")
+        super().__init__(f"the run breaks the any-device rules: {n} finding(s):\n{lines}")
 
 
 @dataclass
 class DeviceReport:
-    """What ``check_any_device`` found: one line per place (empty: every rule kept)."""
+    """What ``check_any_device`` found: one line per place and pass (empty: every rule kept).
+
+    (A place can appear twice: a ``.item()`` is counted on the CPU and raises on ``meta``.)
+    """
 
     findings: list[str] = field(default_factory=list)
 
@@ -94,9 +98,9 @@ def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceR
     ``steps``: 70 by default, past the first refill of the random blocks (64 steps).
     """
     findings = _reads_on_cpu(build, steps)
-    on_meta = _steps_on_meta(build, steps)
-    findings += [f for f in on_meta if f not in findings]
-    if not on_meta:  # (a run that cannot step on meta cannot be replayed there either)
+    on_meta, stepped = _steps_on_meta(build, steps)
+    findings += on_meta
+    if stepped and not on_meta:  # (what the eager passes find, a capture refuses too)
         findings += _replay_on_meta(build)
     return DeviceReport(findings)
 
@@ -125,7 +129,7 @@ def _failure(err: Exception, doing: str) -> str:
     """A finding for an exception: where it was raised (outside torch) and what it says."""
     at = place(traceback.extract_tb(err.__traceback__))
     text = f"{type(err).__name__}: {err}".splitlines()[0]
-    if isinstance(err, GraphError):  # (its message names the subtask and what to do)
+    if isinstance(err, (GraphError, ValueError)):  # (names the subtask or env, and the fix)
         return f"{at}: {doing} failed: {text}"
     if "meta" in text and any(w in text for w in ("item", "data", "copy out")):
         hint = _READ
@@ -148,23 +152,28 @@ def _reads_on_cpu(build, steps: int) -> list[str]:
     counter = HostSyncCounter(stacks=True)
     with _off_cpu_rules():
         try:
-            _steps(build("cpu"), steps, counter)
+            trainer = build("cpu")
         except Exception as err:  # noqa: BLE001  (reported as a finding)
+            return [_failure(err, "building the run on the CPU")]
+        try:
+            _steps(trainer, steps, counter)
+        except Exception as err:  # noqa: BLE001
             return [_failure(err, "a training step on the CPU with a GPU's shape rules")]
     return _counted(counter, steps, "on the CPU")
 
 
-def _steps_on_meta(build, steps: int) -> list[str]:
+def _steps_on_meta(build, steps: int) -> tuple[list[str], bool]:
+    """The findings of ``steps`` eager steps on ``meta``, and whether the steps ran."""
     try:
         trainer = build("meta")
     except Exception as err:  # noqa: BLE001
-        return [_failure(err, "building the run for a device other than the CPU ('meta')")]
+        return [_failure(err, "building the run for a device other than the CPU ('meta')")], False
     counter = HostSyncCounter(stacks=True)
     try:
         _steps(trainer, steps, counter)
     except Exception as err:  # noqa: BLE001
-        return [_failure(err, "a training step on 'meta' (CUDA's device rules)")]
-    return _counted(counter, steps, "on 'meta'")
+        return [_failure(err, "a training step on 'meta' (CUDA's device rules)")], False
+    return _counted(counter, steps, "on 'meta'"), True
 
 
 def _replay_on_meta(build) -> list[str]:

@@ -179,6 +179,26 @@ def static_shapes(device: torch.device) -> bool:
     return device.type != "cpu" if STATIC_SHAPES is None else STATIC_SHAPES
 
 
+def same_device(a: torch.device, b: torch.device) -> bool:
+    """Whether ``a`` and ``b`` name one device (``cuda`` and ``cuda:0`` do).
+
+    An index counts only when both have one.
+    """
+    if a.type != b.type:
+        return False
+    return a.index is None or b.index is None or a.index == b.index
+
+
+def defined_at(fn) -> str:
+    """``file:line`` where the function (or bound method, or callable object) ``fn`` is defined."""
+    code = getattr(getattr(fn, "__func__", fn), "__code__", None)
+    if code is None:  # (a callable object: its class's method)
+        code = getattr(vars(type(fn)).get("__call__"), "__code__", None)
+    if code is None:
+        return "?"
+    return f"{'/'.join(code.co_filename.split('/')[-2:])}:{code.co_firstlineno}"
+
+
 _CONSTANTS: dict[tuple[int, torch.device], tuple[torch.Tensor, torch.Tensor]] = {}
 
 

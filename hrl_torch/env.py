@@ -26,8 +26,10 @@ from hrl_torch.devices import (
     DeferredCheck,
     apply_to_tensors,
     attributes_of,
+    defined_at,
     holds_tensor,
     move_attributes,
+    same_device,
 )
 from hrl_torch.rng import BatchRNG
 
@@ -126,6 +128,7 @@ class BatchedEnv:
             action = self._checked(action)
         was_done = self.done  # (never written in place: a returned ``is_init`` stays valid)
         reward, duration, terminated = self._step_all(action)
+        on_env_device(self, "_step_all", reward=reward, duration=duration, terminated=terminated)
         fresh = ~was_done
         elapsed = self.elapsed + 1
         if self.max_episode_steps is None:
@@ -186,6 +189,7 @@ class BatchedEnv:
 
     def _output(self, reward, duration, terminated, truncated, is_init) -> TensorDict:
         fields = self._observe()
+        on_env_device(self, "_observe", **fields)
         fields.update(
             reward=reward,
             duration=duration,
@@ -271,3 +275,21 @@ def _plain_helper(value) -> bool:
         and attributes_of(value) is not None
         and not isinstance(value, (type, nn.Module, BatchRNG, BatchedEnv))
     )
+
+
+def on_env_device(env, method: str, **fields) -> None:
+    """Each of ``fields`` (what ``env.method`` returned) is a tensor on ``env.device``.
+
+    A tensor an env makes on the CPU would otherwise fail later, deep inside the step (or copy
+    to the GPU at every step); the check compares devices and reads no data.
+    """
+    for key, value in fields.items():
+        if not torch.is_tensor(value) or value.device == env.device:  # (others: check_env's)
+            continue
+        if not same_device(value.device, env.device):
+            raise ValueError(
+                f"{type(env).__name__}.{method} ({defined_at(getattr(env, method))}) returned "
+                f"{key!r} on {value.device}, the env is on {env.device}: make it from the env's "
+                f"tensors (torch.where, torch.ones_like(...), device=self.device; module-level "
+                f"tables via devices.constant_on)"
+            )

@@ -18,7 +18,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from hrl_torch.devices import KeepsHostCopies
+from hrl_torch.devices import KeepsHostCopies, defined_at, same_device
 from hrl_torch.graph_compile import compile_instances, compile_nodes, validate
 from hrl_torch.ops import columns, lookup
 from hrl_torch.subtask import (  # noqa: F401  (Subtask, Primitive, GraphError: re-exported)
@@ -381,13 +381,23 @@ def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=No
             value = graph.nodes[k].initiable(obs)
         else:
             value = graph._call(graph.nodes[k].terminated, obs, memory, k)
-        if not isinstance(value, torch.Tensor) or value.device != device:
+        if not torch.is_tensor(value) or not same_device(value.device, device):
             got = f"a tensor on {value.device}" if torch.is_tensor(value) else type(value).__name__
             raise GraphError(
-                f"{graph.names[k]!r}.{method} returned {got}, the run is on {device}: return a "
-                f"tensor made from the observation's (torch.ones_like(...), device=obs[key].device;"
-                f" module-level tables via devices.constant_on)"
+                f"{graph.names[k]!r}.{method} ({_source_of(graph.nodes[k], method)}) "
+                f"returned {got}, the run is on {device}: return a tensor made from the "
+                f"observation's (torch.ones_like(...), device=obs[key].device; module-level "
+                f"tables via devices.constant_on)"
             )
         return value
 
     return value_of
+
+
+def _source_of(node, method: str) -> str:
+    """``file:line`` of the code behind ``node``'s ``method``.
+
+    That is a callable given to the node (``Subtask(abstract=...)``), else the method itself.
+    """
+    given = vars(node).get("_fns", {}).get(method) or vars(node).get(f"_{method}")
+    return defined_at(given if given is not None else getattr(node, method))

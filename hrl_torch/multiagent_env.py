@@ -39,7 +39,7 @@ import torch
 from tensordict import TensorDict
 
 from hrl_torch.devices import DeferredCheck
-from hrl_torch.env import BatchedEnv
+from hrl_torch.env import BatchedEnv, on_env_device
 
 
 class MultiAgentBatchedEnv(BatchedEnv):
@@ -130,6 +130,7 @@ class MultiAgentBatchedEnv(BatchedEnv):
         action = self._check_action(torch.as_tensor(action, device=self.device))
         was_done = self.done.clone()
         reward, duration, terminated, next_acting = self._step_all(action, self.acting)
+        on_env_device(self, "_step_all", reward=reward, duration=duration, terminated=terminated)
         self.elapsed += 1
         if self.max_episode_steps is None:
             truncated = torch.zeros_like(terminated)
@@ -198,6 +199,7 @@ class MultiAgentBatchedEnv(BatchedEnv):
         self, reward, duration, terminated, truncated, is_init, agent_time, agent_reward=None
     ) -> TensorDict:
         fields = self._observe()
+        on_env_device(self, "_observe", **fields)
         fields.update(
             reward=reward,
             duration=duration,

@@ -15,8 +15,11 @@ GPU run would synchronise on.
 
 from __future__ import annotations
 
+import os
+import sysconfig
 from collections import Counter
 
+import tensordict
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
@@ -180,21 +183,39 @@ def _caller() -> str:
     return place(traceback.extract_stack())
 
 
-#: frames inside these are not the code that made an op (``place``)
-_LIBRARY_PARTS = ("/torch/", "/tensordict/", "/sync_count.py", "/devicecheck.py", "/contextlib.py")
+def _folder(module) -> str:
+    return os.path.dirname(os.path.abspath(module.__file__)) + os.sep
+
+
+#: frames inside these are not the code that made an op (``place``): torch, tensordict, the
+#: standard library, and the checking code
+_LIBRARIES = (_folder(torch), _folder(tensordict))
+_STDLIB = sysconfig.get_paths()["stdlib"] + os.sep
+_CHECKERS = ("sync_count.py", "devicecheck.py")
+_PACKAGES = "-packages" + os.sep  # (site-packages, dist-packages)
+
+
+def _library(name: str) -> bool:
+    """Whether a frame's file is torch's, tensordict's, the standard library's or a checker's."""
+    if name.startswith(("<", *_LIBRARIES)) or os.path.basename(name) in _CHECKERS:
+        return True
+    return name.startswith(_STDLIB) and _PACKAGES not in name
 
 
 def place(frames) -> str:
     """``dir/file:line`` of the innermost of ``frames`` outside torch and the checking code.
 
     ``frames``: ``traceback.FrameSummary`` items, outermost first. The frame found is the code
-    that made the op: this project's, or a user's own env or subtask.
+    that made the op: this project's, or a user's own env or subtask. A frame of another
+    installed package (under ``site-packages``) is named only when no frame outside one is.
     """
-    for frame in reversed(list(frames)):
-        name = frame.filename.replace("\\", "/")
-        if not name.startswith("<") and not any(part in name for part in _LIBRARY_PARTS):
-            return f"{name.split('/')[-2]}/{name.split('/')[-1]}:{frame.lineno}"
-    return "?"
+    kept = [f for f in reversed(list(frames)) if not _library(f.filename)]
+    own = [f for f in kept if _PACKAGES not in f.filename]
+    if not (own or kept):
+        return "?"
+    frame = (own or kept)[0]
+    name = frame.filename.replace("\\", "/")
+    return f"{'/'.join(name.split('/')[-2:])}:{frame.lineno}"
 
 
 def count_train_step(trainer, steps: int = 1, stacks: bool = False) -> HostSyncCounter:

@@ -53,6 +53,14 @@ class ReadsBack(TwoRoomsEnv):
         return reward, duration, at_goal
 
 
+class RewardOnTheHost(TwoRoomsEnv):
+    """Makes its reward on the CPU, whatever its device."""
+
+    def _step_all(self, action):  # REWARD-HOST
+        reward, duration, at_goal = super()._step_all(action)
+        return torch.full((self.batch_size,), -1.0), duration, at_goal
+
+
 def initiable_on_the_host(subtask, obs):
     """A subtask's initiation set made on the CPU, whatever the run's device."""
     return torch.ones(obs["cell"].shape[0], dtype=torch.bool)
@@ -92,15 +100,35 @@ def test_a_python_branch_on_a_tensor_is_found_on_the_cpu_and_on_meta():
     assert [f.split(": ")[0] for f in report.findings] == [at, at], report.findings
     assert "[item, 70 in 70 steps on the CPU]" in report.findings[0]
     assert "training step on 'meta'" in report.findings[1]
-    with pytest.raises(DeviceRuleError, match="breaks the any-device rules in 2 place"):
+    with pytest.raises(DeviceRuleError, match="breaks the any-device rules: 2 finding"):
         report.raise_if_any()
 
 
 def test_a_subtask_that_answers_on_the_cpu_is_named_on_meta():
     report = check_any_device(_builder(initiable=initiable_on_the_host))
     assert len(report.findings) == 1, report.findings
-    said = "'ToDoor'.initiable returned a tensor on cpu, the run is on meta"
+    at = _line("def initiable_on_the_host")  # (where the subtask's code is, not the framework's)
+    said = f"'ToDoor'.initiable ({at}) returned a tensor on cpu, the run is on meta"
     assert said in report.findings[0] and "training step on 'meta'" in report.findings[0]
+
+
+def test_an_env_that_answers_on_the_cpu_is_named_on_meta():
+    report = check_any_device(_builder(RewardOnTheHost))
+    assert len(report.findings) == 1, report.findings
+    at = _line("REWARD-HOST")
+    said = f"RewardOnTheHost._step_all ({at}) returned 'reward' on cpu, the env is on meta"
+    assert said in report.findings[0], report.findings
+
+
+def test_a_device_named_with_an_index_is_the_device_without_one():
+    """``cpu:0`` (as ``cuda:0``): the run's tensors report ``cpu``; nothing may call that a
+    different device (the ship's graph is not tabulated: every subtask answers each step)."""
+    opts = RunOptions(seeds=[0], envs_per_learner=2, eval_episodes=2, device="cpu:0")
+    opts.progress = opts.tensorboard = False
+    trainer = build_trainer(registry.get("ship-steering"), "hybrid", opts)
+    for _ in range(5):
+        trainer.train_step()
+    assert trainer.evaluate()[0].shape == (1,)
 
 
 def test_a_registered_configuration_keeps_every_rule():
