@@ -166,6 +166,13 @@ class AutoResetTorchRLEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         """Seeds are the domain's (one per learner); TorchRL's seed is ignored."""
 
+    def maybe_reset(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Nothing to reset: ``done`` is always False (the domain resets its own rows).
+
+        (``EnvBase.maybe_reset`` would read ``done.any()`` back at every step.)
+        """
+        return tensordict
+
 
 def domain_output(td: TensorDictBase, keys: list[str]) -> TensorDict:
     """The domain's step output (``keys``) from a rollout TensorDict (undo ``STEP_KEYS``)."""
@@ -194,7 +201,10 @@ class HierarchicalPolicy(TensorDictModuleBase):
         """Choose the next actions at the observation of ``tensordict``."""
         b = self.agent.executor.batch_size
         executor = self.agent.executor
-        executor.stack = TaskStack.from_tensors(dict(tensordict.get(STACK).items()), b)
+        fields = dict(tensordict.get(STACK).items())
+        held = executor.stack.tensors()
+        if fields.keys() != held.keys() or any(v is not held[k] for k, v in fields.items()):
+            executor.stack = TaskStack.from_tensors(fields, b)  # (else: the stack it wrote)
         action, batch = self.agent.decide(domain_output(tensordict, self.obs_keys))
         tensordict.set("action", action)
         stack = TensorDict(executor.stack.tensors(), batch_size=[b], device=tensordict.device)

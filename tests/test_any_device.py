@@ -242,6 +242,25 @@ def test_an_eager_step_off_the_cpu_copies_nothing_from_the_host(domain, algo):
     assert dict(counter.where) == {}
 
 
+@pytest.mark.parametrize(("domain", "algo"), [("taxi", "maxq-q"), ("ship-steering", "hybrid")])
+def test_the_collector_path_reads_nothing_back_per_step(domain, algo, monkeypatch):
+    """TorchRL's ``Collector`` steps the domain: no read per step there either.
+
+    (``EnvBase.maybe_reset`` would read ``done.any()`` twice a step, and a Task-Stack handed
+    back by the rollout reset the executor's quiet subtask guard, which then read every step.)
+    TorchRL's collector refuses ``meta``, so this counts on the CPU with the off-CPU rules.
+    """
+    import hrl_torch.devices
+
+    monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", True)
+    opts = _options()
+    opts.collector = True
+    trainer = build_trainer(registry.get(domain), algo, opts)
+    for _ in range(3):
+        trainer.train_step()
+    assert dict(count_train_step(trainer, 70, stacks=True).where) == {}
+
+
 def test_the_documented_two_rooms_example_replays_on_meta():
     """The walkthrough's env (docs/your-own-hierarchy.md) keeps the any-device rules."""
     from hrl_torch.exploration import EpsilonGreedy
