@@ -279,6 +279,7 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch import registry
     from hrl_torch.checkpoint import CheckpointError, load_checkpoint
     from hrl_torch.experiment import RunOptions, check_choice
+    from hrl_torch.steps import single_agent_only
 
     given = {
         "steps": args.steps,
@@ -318,6 +319,9 @@ def _train_options(args: argparse.Namespace):
             raise UserError(f"train needs {missing} (or --resume CHECKPOINT)")
         domain = registry.get(args.domain)
         spec = check_choice(domain, args.algo, given.get("backend", "torch"))
+        if args.collector:  # (a one-row env says whether it is multi-agent)
+            backend = given.get("backend", "torch")
+            single_agent_only(domain.make_env([0], 1, backend, **spec.env_options))
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
         raise UserError.of(err) from err
     _check_settings(spec, settings)

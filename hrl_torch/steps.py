@@ -73,6 +73,8 @@ class CollectedSteps(DirectSteps):
         if self._steps is None:
             from hrl_torch.collector import CollectorSource  # TorchRL only on this path
 
+            single_agent_only(env)
+
             self._source = CollectorSource(env, self.agent, self._resume_obs)
             self._steps = self._source.steps()
             self._resume_obs = None
@@ -93,3 +95,12 @@ class CollectedSteps(DirectSteps):
     def _resume(self, pending: dict) -> None:
         b = [self.batch_size]
         self._resume_obs = TensorDict(pending, batch_size=b) if pending else None
+
+
+def single_agent_only(env) -> None:
+    """The collector path steps single-agent envs only: a clear error for any other."""
+    if getattr(env, "n_agents", None) is not None:
+        raise ValueError(
+            f"the collector path (--collector) is single-agent, and {type(env).__name__} has "
+            f"{env.n_agents} agents per row: train it without the collector (docs/collectors.md)"
+        )

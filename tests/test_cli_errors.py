@@ -53,6 +53,27 @@ def test_unknown_domain_and_algorithm(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
+def test_the_collector_on_a_multi_agent_domain(tmp_path, capsys):
+    """The collector path is single-agent: said before anything is built (it used to fail at the
+    first step, inside TorchRL's specs)."""
+    args = ["train", "trash", "--algo", "cooperative", "--collector", "--no-progress"]
+    code = main([*args, "--out", str(tmp_path / "runs")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [
+        "hrl-torch: error: the collector path (--collector) is single-agent, and TrashEnv has 2 "
+        "agents per row: train it without the collector (docs/collectors.md)"
+    ]
+    assert not (tmp_path / "runs").exists()
+    # and from Python: build_trainer says the same
+    import agents  # noqa: F401
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+
+    opts = RunOptions(seeds=[0], collector=True, progress=False, tensorboard=False)
+    with pytest.raises(ValueError, match=r"collector path \(--collector\) is single-agent"):
+        build_trainer(registry.get("trash"), "cooperative", opts)
+
+
 def test_missing_and_corrupt_checkpoints(tmp_path, capsys):
     missing = tmp_path / "nope" / "checkpoint.pt"
     assert main([*BASE, "--resume", str(missing)]) == 2
