@@ -3,7 +3,7 @@
 A run that works on the CPU can fail, or crawl, on a GPU: a table made on the CPU that a step
 indexes with device tensors, ``TABLE.to(device)`` inside a step (a synchronising copy that a
 CUDA-graph capture refuses), ``.item()`` or ``if tensor:`` in a step (each waits for the GPU).
-``check_any_device(build)`` looks for them in three passes and names, for each finding, the
+``check_any_device(build)`` looks for them in four passes and names, for each finding, the
 file and line of the code that made it (your env's, your subtask's, or this project's):
 
 1. the CPU with the rules a GPU run gets (static shapes, every broadcast round): every host
@@ -13,6 +13,9 @@ file and line of the code that made it (your env's, your subtask's, or this proj
 3. ``meta`` again, a fresh run, when pass 2 found nothing (what it finds, a capture refuses
    too): the step recorded and replayed with a CUDA graph's rules (``cuda_graph.StepGraph``,
    backend ``"trace"``), which also refuses a step whose Python integers move unevenly.
+4. the CPU with a GPU's shape rules again, one greedy evaluation (at most ``EVAL_STEPS``
+   steps) if the run has an eval env: places that read the device more often than every
+   ``evaluation.READ_EVERY`` steps (an evaluation reads by design only that often).
 
 ``build(device)`` returns the ``Trainer`` on ``device``, built on the CPU and then moved (what
 ``experiment.build_trainer`` does with ``RunOptions.device``). ``hrl-torch check`` runs this on
@@ -21,14 +24,17 @@ a registered domain (docs/your-own-hierarchy.md, "Will it run on a GPU?").
 
 from __future__ import annotations
 
+import dataclasses
 import traceback
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from hrl_torch import broadcast, devices
 from hrl_torch.cuda_graph import StepGraph
+from hrl_torch.evaluation import READ_EVERY
 from hrl_torch.graph import GraphError
 from hrl_torch.sync_count import HostSyncCounter, place
 
@@ -93,7 +99,7 @@ class DeviceReport:
 
 
 def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceReport:
-    """The three passes of the module docstring over ``steps`` training steps each.
+    """The passes of the module docstring (``steps`` training steps each, then an evaluation).
 
     ``steps``: 70 by default, past the first refill of the random blocks (64 steps).
     """
@@ -102,7 +108,7 @@ def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceR
     findings += on_meta
     if stepped and not on_meta:  # (what the eager passes find, a capture refuses too)
         findings += _replay_on_meta(build)
-    return DeviceReport(findings)
+    return DeviceReport(findings + _evaluation_reads(build))
 
 
 @contextmanager
@@ -116,10 +122,10 @@ def _off_cpu_rules() -> Iterator[None]:
         devices.STATIC_SHAPES, broadcast.STATIC_ROUNDS = saved
 
 
-def _counted(counter: HostSyncCounter, steps: int, where: str) -> list[str]:
-    """One finding per (kind, place) the counter saw."""
+def _counted(counter, steps: int, where: str) -> list[str]:
+    """One finding per (kind, place) the counter saw (``counter``: its ``where``, or itself)."""
     out = []
-    for key, n in counter.where.items():
+    for key, n in getattr(counter, "where", counter).items():
         kind, at = key.split(" ", 1)
         out.append(f"{at}: {HINTS.get(kind, kind)} [{kind}, {n} in {steps} steps {where}]")
     return out
@@ -176,6 +182,57 @@ def _steps_on_meta(build, steps: int) -> tuple[list[str], bool]:
     return _counted(counter, steps, "on 'meta'"), True
 
 
+#: evaluation steps the evaluation pass plays at most (its episodes or window are cut to it)
+EVAL_STEPS = 200
+
+
+def _evaluation_reads(build) -> list[str]:
+    """Places that read the device at (nearly) every step of a greedy evaluation.
+
+    An evaluation reads by design, every ``evaluation.READ_EVERY`` steps off the CPU; a place
+    that reads more often than that (an env's or a subtask's own read) is a finding.
+    """
+    counter = HostSyncCounter(stacks=True)
+    with _off_cpu_rules():
+        try:
+            trainer = build("cpu")
+            if trainer.eval_env is None:  # (the run evaluates nothing)
+                return []
+            _shorten_evaluation(trainer)
+            played = _count_env_steps(trainer.eval_env)
+            with counter:
+                trainer.evaluate()
+        except Exception as err:  # noqa: BLE001
+            return [_failure(err, "a greedy evaluation on the CPU with a GPU's shape rules")]
+    limit = played[0] / READ_EVERY + 2
+    per_step = Counter({k: n for k, n in counter.where.items() if n > limit})
+    return _counted(per_step, played[0], "of a greedy evaluation")
+
+
+def _shorten_evaluation(trainer) -> None:
+    """At most ``EVAL_STEPS`` steps: episodes capped, a throughput window cut."""
+    trainer.config.eval_max_steps = min(trainer.config.eval_max_steps, EVAL_STEPS)
+    ev = trainer.evaluator
+    if dataclasses.is_dataclass(ev) and {"horizon", "max_steps"} <= set(vars(ev)):
+        window = {"burn_in": 0, "horizon": EVAL_STEPS, "max_steps": EVAL_STEPS}
+        trainer.evaluator = dataclasses.replace(
+            ev, **{k: v for k, v in window.items() if k in vars(ev)}
+        )
+
+
+def _count_env_steps(env) -> list[int]:
+    """``[n]``: the env's steps from now on (its ``step`` wrapped on the instance)."""
+    played = [0]
+    step = env.step
+
+    def counted(action):
+        played[0] += 1
+        return step(action)
+
+    env.step = counted
+    return played
+
+
 def _replay_on_meta(build) -> list[str]:
     trainer = build("meta")
     graph = StepGraph(trainer.train_step, trainer, backend="trace")
@@ -194,12 +251,12 @@ def _replay_on_meta(build) -> list[str]:
 def check_domain(domain, algo: str, steps: int = 70) -> DeviceReport:
     """``check_any_device`` of a registered ``domain`` (a ``DomainSpec``) as ``algo`` builds it.
 
-    Two seeds, two env rows each, no evaluation (what ``hrl-torch check`` runs).
+    Two seeds, two env rows and two evaluation episodes each (what ``hrl-torch check`` runs).
     """
     from hrl_torch.experiment import RunOptions, build_trainer
 
     def build(device: str):
-        opts = RunOptions(seeds=[0, 1], envs_per_learner=2, eval_episodes=0, device=device)
+        opts = RunOptions(seeds=[0, 1], envs_per_learner=2, eval_episodes=2, device=device)
         opts.progress = opts.tensorboard = opts.check_env = False
         return build_trainer(domain, algo, opts)
 

@@ -66,7 +66,7 @@ def initiable_on_the_host(subtask, obs):
     return torch.ones(obs["cell"].shape[0], dtype=torch.bool)
 
 
-def _builder(env_cls=TwoRoomsEnv, initiable=None):
+def _builder(env_cls=TwoRoomsEnv, initiable=None, eval_env_cls=TwoRoomsEnv):
     def build(device: str):
         graph = two_rooms_hierarchy()
         for node in graph.nodes:
@@ -74,8 +74,10 @@ def _builder(env_cls=TwoRoomsEnv, initiable=None):
                 node.initiable = types.MethodType(initiable, node)
         learner = MaxQLearner(graph, 2, alpha=0.5, gamma=1.0).to(device)
         env = env_cls([0, 1], envs_per_learner=2).to(device)
+        eval_env = eval_env_cls([7, 7], envs_per_learner=3).to(device)
         config = TrainConfig(steps=10, eval_every=0, progress=False)
-        return Trainer(env, graph.to(device), learner, EpsilonGreedy(0.1), config)
+        exploration = EpsilonGreedy(0.1)
+        return Trainer(env, graph.to(device), learner, exploration, config, eval_env)
 
     return build
 
@@ -102,6 +104,15 @@ def test_a_python_branch_on_a_tensor_is_found_on_the_cpu_and_on_meta():
     assert "training step on 'meta'" in report.findings[1]
     with pytest.raises(DeviceRuleError, match="breaks the any-device rules: 2 finding"):
         report.raise_if_any()
+
+
+def test_an_evaluation_env_that_reads_every_step_is_found():
+    """Only the eval env reads (a domain's own ``make_eval_env``): the evaluation pass finds it,
+    where every step of the evaluation reads, not every ``READ_EVERY``."""
+    report = check_any_device(_builder(eval_env_cls=ReadsBack))
+    assert len(report.findings) == 1, report.findings
+    assert report.findings[0].startswith(_line("BREAK-READ"))
+    assert "steps of a greedy evaluation]" in report.findings[0]
 
 
 def test_a_subtask_that_answers_on_the_cpu_is_named_on_meta():
