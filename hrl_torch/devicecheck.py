@@ -38,7 +38,7 @@ from hrl_torch.evaluation import READ_EVERY
 from hrl_torch.graph import GraphError
 from hrl_torch.sync_count import HostSyncCounter, place
 
-__all__ = ["DeviceReport", "DeviceRuleError", "check_any_device", "check_domain"]
+__all__ = ["DeviceReport", "DeviceRuleError", "check_any_device", "check_domain", "counting_steps"]
 
 _READ = (
     "a value read back to the host (.item(), bool(), int(), float(), `if tensor:`, tolist): "
@@ -199,8 +199,7 @@ def _evaluation_reads(build) -> list[str]:
             if trainer.eval_env is None:  # (the run evaluates nothing)
                 return []
             _shorten_evaluation(trainer)
-            played = _count_env_steps(trainer.eval_env)
-            with counter:
+            with counting_steps(type(trainer.eval_env)) as played, counter:
                 trainer.evaluate()
         except Exception as err:  # noqa: BLE001
             return [_failure(err, "a greedy evaluation on the CPU with a GPU's shape rules")]
@@ -220,17 +219,29 @@ def _shorten_evaluation(trainer) -> None:
         )
 
 
-def _count_env_steps(env) -> list[int]:
-    """``[n]``: the env's steps from now on (its ``step`` wrapped on the instance)."""
+@contextmanager
+def counting_steps(env_class) -> Iterator[list[int]]:
+    """``[n]``: the steps of every ``env_class`` env taken in the block.
+
+    The class's ``step`` is wrapped, not one instance's, so envs split off by ``env.subset``
+    (a copy of the instance) count too and step themselves.
+    """
     played = [0]
-    step = env.step
+    own = vars(env_class).get("step")
+    step = env_class.step
 
-    def counted(action):
+    def counted(env, action):
         played[0] += 1
-        return step(action)
+        return step(env, action)
 
-    env.step = counted
-    return played
+    env_class.step = counted
+    try:
+        yield played
+    finally:
+        if own is None:
+            del env_class.step
+        else:
+            env_class.step = own
 
 
 def _replay_on_meta(build) -> list[str]:

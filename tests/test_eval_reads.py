@@ -12,6 +12,7 @@ import torch
 
 import agents  # noqa: F401  (registers the domains)
 from hrl_torch import broadcast, devices, evaluation, registry
+from hrl_torch.devicecheck import counting_steps
 from hrl_torch.evaluation import EvalEpisodes
 from hrl_torch.executor import BadStepError
 from hrl_torch.experiment import RunOptions, build_trainer
@@ -36,32 +37,22 @@ def off_cpu_rules(monkeypatch):
     return set_rules
 
 
-def _trained(domain: str, algo: str, eval_max_steps: int):
-    opts = RunOptions(seeds=[0, 1], envs_per_learner=4, eval_episodes=20)
+def _trained(domain: str, algo: str, eval_max_steps: int, envs: int = 4, episodes: int = 20):
+    opts = RunOptions(seeds=[0, 1], envs_per_learner=envs, eval_episodes=episodes)
     opts.progress = opts.tensorboard = False
     trainer = build_trainer(registry.get(domain), algo, opts)
     if eval_max_steps:
         trainer.config.eval_max_steps = eval_max_steps
-    for _ in range(200):
+    for _ in range(200 if envs == 4 else 400):
         trainer.train_step()
     return trainer
 
 
 def _evaluate(trainer) -> tuple[list, object, int, int]:
     """Numbers, records, host reads and env steps of one evaluation."""
-    steps = 0
-    env_step = trainer.eval_env.step
-
-    def counted(action):
-        nonlocal steps
-        steps += 1
-        return env_step(action)
-
-    trainer.eval_env.step = counted
-    with HostSyncCounter() as reads:
+    with counting_steps(type(trainer.eval_env)) as steps, HostSyncCounter() as reads:
         numbers = [x.tolist() for x in trainer.evaluate()]
-    del trainer.eval_env.step
-    return numbers, trainer.last_eval_records, reads.total, steps
+    return numbers, trainer.last_eval_records, reads.total, steps[0]
 
 
 @pytest.mark.parametrize(("domain", "algo", "eval_max_steps"), CONFIGS)
@@ -79,6 +70,20 @@ def test_off_the_cpu_the_evaluation_reads_every_few_steps_and_finds_the_same(
     # off the CPU: a handful per READ_EVERY steps, and the set-up's few
     assert reads_off <= 6 * steps_off / evaluation.READ_EVERY + 12
     assert steps_off <= steps + evaluation.READ_EVERY  # (a read stops it within READ_EVERY)
+
+
+def test_off_the_cpu_episodes_that_end_are_split_off_and_the_loop_stops(off_cpu_rules):
+    """A taxi population that has learned: every episode ends (in 13 steps on average), rows
+    are split off once half have finished and the loop stops within ``READ_EVERY`` steps of
+    the CPU's."""
+    results = []
+    for on in (False, True):
+        off_cpu_rules(on)
+        results.append(_evaluate(_trained("taxi", "maxq-q", 200, envs=64, episodes=40)))
+    (numbers, records, _, steps), (numbers_off, records_off, _, steps_off) = results
+    assert bool((records["length"] < 100).all()) and steps < 100  # (every episode ended)
+    assert numbers_off == numbers and bool((records_off == records).all())
+    assert steps <= steps_off <= steps + evaluation.READ_EVERY
 
 
 def test_off_the_cpu_a_nan_in_an_evaluation_raises_the_immediate_message(off_cpu_rules):
