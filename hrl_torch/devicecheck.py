@@ -38,7 +38,14 @@ from hrl_torch.evaluation import READ_EVERY
 from hrl_torch.graph import GraphError
 from hrl_torch.sync_count import HostSyncCounter, place
 
-__all__ = ["DeviceReport", "DeviceRuleError", "check_any_device", "check_domain", "counting_steps"]
+__all__ = [
+    "DeviceReport",
+    "DeviceRuleError",
+    "check_any_device",
+    "check_domain",
+    "counting_steps",
+    "off_cpu_rules",
+]
 
 _READ = (
     "a value read back to the host (.item(), bool(), int(), float(), `if tensor:`, tolist): "
@@ -112,7 +119,7 @@ def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceR
 
 
 @contextmanager
-def _off_cpu_rules() -> Iterator[None]:
+def off_cpu_rules() -> Iterator[None]:
     """The CPU with the shape rules a GPU run gets (``devices.STATIC_SHAPES`` and friends)."""
     saved = devices.STATIC_SHAPES, broadcast.STATIC_ROUNDS
     devices.STATIC_SHAPES = broadcast.STATIC_ROUNDS = True
@@ -156,7 +163,7 @@ def _steps(trainer, steps: int, counter: HostSyncCounter) -> None:
 
 def _reads_on_cpu(build, steps: int) -> list[str]:
     counter = HostSyncCounter(stacks=True)
-    with _off_cpu_rules():
+    with off_cpu_rules():
         try:
             trainer = build("cpu")
         except Exception as err:  # noqa: BLE001  (reported as a finding)
@@ -193,7 +200,7 @@ def _evaluation_reads(build) -> list[str]:
     that reads more often than that (an env's or a subtask's own read) is a finding.
     """
     counter = HostSyncCounter(stacks=True)
-    with _off_cpu_rules():
+    with off_cpu_rules():
         try:
             trainer = build("cpu")
             if trainer.eval_env is None:  # (the run evaluates nothing)

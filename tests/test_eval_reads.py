@@ -3,15 +3,17 @@
 On the CPU a read costs nothing and the evaluation reads every step (rows still playing,
 immediate checks). Elsewhere each read synchronises, so the evaluation agent's checks are
 deferred (``hrl_torch.deferred.deferred_meanwhile``) and the loop reads every
-``evaluation.READ_EVERY`` steps. ``devices.STATIC_SHAPES = True`` gives the CPU the off-CPU
+``evaluation.READ_EVERY`` steps. ``devicecheck.off_cpu_rules`` gives the CPU the off-CPU
 rules: the same numbers and records, far fewer reads, the same error messages.
 """
+
+import contextlib
 
 import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import broadcast, devices, evaluation, registry
+from hrl_torch import devicecheck, evaluation, registry
 from hrl_torch.devicecheck import counting_steps
 from hrl_torch.evaluation import EvalEpisodes
 from hrl_torch.executor import BadStepError
@@ -27,14 +29,16 @@ CONFIGS = [
 
 
 @pytest.fixture
-def off_cpu_rules(monkeypatch):
-    """The rules an off-CPU device gets, on the CPU."""
+def off_cpu_rules():
+    """``set_rules(True)``: the rules an off-CPU device gets, on the CPU, to the test's end
+    (``devicecheck.off_cpu_rules``, what ``hrl-torch check`` uses)."""
+    with contextlib.ExitStack() as rules:
 
-    def set_rules(on: bool) -> None:
-        monkeypatch.setattr(devices, "STATIC_SHAPES", True if on else None)
-        monkeypatch.setattr(broadcast, "STATIC_ROUNDS", True if on else None)
+        def set_rules(on: bool) -> None:
+            if on:
+                rules.enter_context(devicecheck.off_cpu_rules())
 
-    return set_rules
+        yield set_rules
 
 
 def _trained(domain: str, algo: str, eval_max_steps: int, envs: int = 4, episodes: int = 20):
