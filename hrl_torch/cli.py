@@ -281,23 +281,7 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch.experiment import RunOptions, check_choice
     from hrl_torch.steps import single_agent_only
 
-    given = {
-        "steps": args.steps,
-        "checkpoint_every": args.checkpoint_every,
-        "eval_every": args.eval_every,
-        "eval_episodes": args.eval_episodes,
-        "threshold": args.threshold,
-        "envs_per_learner": args.envs_per_seed,
-        "backend": args.backend,
-        "device": args.device,
-        "collector": args.collector or None,
-    }
-    if args.seeds is not None or args.seed_offset is not None:
-        first, n = args.seed_offset or 0, args.seeds or 5
-        given["seeds"] = list(range(first, first + n))
-    given = {k: v for k, v in given.items() if v is not None}
-    settings = _parsed_settings(args.set)  # --set: the names the sweep takes
-    given |= {"settings": settings} if settings else {}
+    given, settings = _given_options(args)
     display = {
         "progress": not args.no_progress,
         "tensorboard": not args.no_tensorboard,
@@ -335,6 +319,28 @@ def _train_options(args: argparse.Namespace):
         raise UserError.of(err) from err
     _check_writable_folder(out, "--out")
     return domain, args.algo, opts
+
+
+def _given_options(args: argparse.Namespace) -> tuple[dict, dict]:
+    """The run options ``hrl-torch train`` was given (``RunOptions`` fields) and its ``--set``."""
+    given = {
+        "steps": args.steps,
+        "checkpoint_every": args.checkpoint_every,
+        "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes,
+        "threshold": args.threshold,
+        "envs_per_learner": args.envs_per_seed,
+        "backend": args.backend,
+        "device": args.device,
+        "collector": args.collector or None,
+    }
+    if args.seeds is not None or args.seed_offset is not None:
+        first, n = args.seed_offset or 0, args.seeds or 5
+        given["seeds"] = list(range(first, first + n))
+    given = {k: v for k, v in given.items() if v is not None}
+    settings = _parsed_settings(args.set)  # --set: the names the sweep takes
+    given |= {"settings": settings} if settings else {}
+    return given, settings
 
 
 def _parsed_settings(items: list[str]) -> dict:
