@@ -13,8 +13,8 @@ file and line of the code that made it (your env's, your subtask's, or this proj
 3. ``meta`` again, a fresh run, when pass 2 found nothing (what it finds, a capture refuses
    too): the step recorded and replayed with a CUDA graph's rules (``cuda_graph.StepGraph``,
    backend ``"trace"``), which also refuses a step whose Python integers move unevenly.
-4. the CPU with a GPU's shape rules again, one greedy evaluation (at most ``EVAL_STEPS``
-   steps) if the run has an eval env: places that read the device more often than every
+4. pass 1's run, once trained, in one greedy evaluation (at most ``EVAL_STEPS`` steps) if it
+   has an eval env: places that read the device more often than every
    ``evaluation.READ_EVERY`` steps (an evaluation reads by design only that often).
 
 ``build(device)`` returns the ``Trainer`` on ``device``, built on the CPU and then moved (what
@@ -110,12 +110,14 @@ def check_any_device(build: Callable[[str], object], steps: int = 70) -> DeviceR
 
     ``steps``: 70 by default, past the first refill of the random blocks (64 steps).
     """
-    findings = _reads_on_cpu(build, steps)
+    with off_cpu_rules():  # (passes 1 and 4: one run on the CPU, trained, then evaluated)
+        findings, trained = _reads_on_cpu(build, steps)
+        evaluation = [] if trained is None else _evaluation_reads(trained)
     on_meta, stepped = _steps_on_meta(build, steps)
     findings += on_meta
     if stepped and not on_meta:  # (what the eager passes find, a capture refuses too)
         findings += _replay_on_meta(build)
-    return DeviceReport(findings + _evaluation_reads(build))
+    return DeviceReport(findings + evaluation)
 
 
 @contextmanager
@@ -161,18 +163,21 @@ def _steps(trainer, steps: int, counter: HostSyncCounter) -> None:
             trainer.train_step()
 
 
-def _reads_on_cpu(build, steps: int) -> list[str]:
+def _reads_on_cpu(build, steps: int) -> tuple[list[str], object]:
+    """The findings of ``steps`` steps on the CPU (under ``off_cpu_rules``), and the trainer.
+
+    The trainer is ``None`` if building it or a step failed.
+    """
     counter = HostSyncCounter(stacks=True)
-    with off_cpu_rules():
-        try:
-            trainer = build("cpu")
-        except Exception as err:  # noqa: BLE001  (reported as a finding)
-            return [_failure(err, "building the run on the CPU")]
-        try:
-            _steps(trainer, steps, counter)
-        except Exception as err:  # noqa: BLE001
-            return [_failure(err, "a training step on the CPU with a GPU's shape rules")]
-    return _counted(counter, steps, "on the CPU")
+    try:
+        trainer = build("cpu")
+    except Exception as err:  # noqa: BLE001  (reported as a finding)
+        return [_failure(err, "building the run on the CPU")], None
+    try:
+        _steps(trainer, steps, counter)
+    except Exception as err:  # noqa: BLE001
+        return [_failure(err, "a training step on the CPU with a GPU's shape rules")], None
+    return _counted(counter, steps, "on the CPU"), trainer
 
 
 def _steps_on_meta(build, steps: int) -> tuple[list[str], bool]:
@@ -193,23 +198,22 @@ def _steps_on_meta(build, steps: int) -> tuple[list[str], bool]:
 EVAL_STEPS = 200
 
 
-def _evaluation_reads(build) -> list[str]:
-    """Places that read the device at (nearly) every step of a greedy evaluation.
+def _evaluation_reads(trainer) -> list[str]:
+    """Places reading at (nearly) every step of ``trainer``'s greedy evaluation.
 
-    An evaluation reads by design, every ``evaluation.READ_EVERY`` steps off the CPU; a place
-    that reads more often than that (an env's or a subtask's own read) is a finding.
+    Run under ``off_cpu_rules``. An evaluation reads by design, every
+    ``evaluation.READ_EVERY`` steps off the CPU; a place that reads more often than that (an
+    env's or a subtask's own read) is a finding.
     """
+    if trainer.eval_env is None:  # (the run evaluates nothing)
+        return []
     counter = HostSyncCounter(stacks=True)
-    with off_cpu_rules():
-        try:
-            trainer = build("cpu")
-            if trainer.eval_env is None:  # (the run evaluates nothing)
-                return []
-            _shorten_evaluation(trainer)
-            with counting_steps(type(trainer.eval_env)) as played, counter:
-                trainer.evaluate()
-        except Exception as err:  # noqa: BLE001
-            return [_failure(err, "a greedy evaluation on the CPU with a GPU's shape rules")]
+    try:
+        _shorten_evaluation(trainer)
+        with counting_steps(type(trainer.eval_env)) as played, counter:
+            trainer.evaluate()
+    except Exception as err:  # noqa: BLE001
+        return [_failure(err, "a greedy evaluation on the CPU with a GPU's shape rules")]
     limit = played[0] / READ_EVERY + 2
     per_step = Counter({k: n for k, n in counter.where.items() if n > limit})
     return _counted(per_step, played[0], "of a greedy evaluation")
