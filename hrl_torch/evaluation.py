@@ -145,10 +145,10 @@ class EpisodicEvaluator(Evaluator):
                 return episodes.records(start, trainer.env.seeds, env.envs_per_learner)
             agent, env, action = playing
         if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
-            with deferred_meanwhile(env, agent.executor):
-                _play(trainer, agent, env, action, episodes, READ_EVERY)
+            with deferred_meanwhile(env, agent.executor) as checks:
+                _play(trainer, agent, env, action, episodes, checks)
         else:
-            _play(trainer, agent, env, action, episodes, 1)
+            _play(trainer, agent, env, action, episodes, None)
         return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
 
 
@@ -157,16 +157,18 @@ class EpisodicEvaluator(Evaluator):
 READ_EVERY = 8
 
 
-def _play(trainer, agent, env, action, episodes: EvalEpisodes, read_every: int) -> None:
+def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | None) -> None:
     """Step the greedy episodes to their ends or ``eval_max_steps`` (``episodes.episodes``).
 
-    Every ``read_every`` steps (and at the last) the device is read: how many rows still play
-    (the loop stops at none and steps only those once half have finished) and, if the checks
-    are deferred, whether a step broke one (raised with its immediate message).
+    ``checks``: the agent's deferred checks (``deferred_meanwhile``), or ``None`` (immediate
+    checks, a read every step: the CPU). With them the device is read every ``READ_EVERY``
+    steps (and at the last): how many rows still play (the loop stops at none and steps only
+    those once half have finished) and whether a step broke a check (raised with its
+    immediate message).
     """
     cfg, graph = trainer.config, trainer.graph
-    deferred = agent.executor.deferred_bad is not None
-    checks = _deferred_of(env, agent) if deferred else []
+    deferred = checks is not None
+    read_every, checks = (READ_EVERY, checks) if deferred else (1, [])
     decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
     finite_only = trainer.executor_config.on_bad_step == "skip"
     bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
@@ -195,14 +197,6 @@ def _play(trainer, agent, env, action, episodes: EvalEpisodes, read_every: int) 
     raise_pending(checks)
     if decisions_on:
         episodes.record_root_decisions(agent.executor, graph, True)
-
-
-def _deferred_of(env, agent) -> list:
-    """The deferred checks ``deferred_meanwhile`` turned on for ``env`` and ``agent``."""
-    executor = agent.executor
-    found = [executor.deferred_bad, executor.deferred_stuck, executor.deferred_timeout]
-    found += [executor.graph.__dict__.get("deferred_ranges"), vars(env).get("deferred_action")]
-    return [c for c in found if c is not None]
 
 
 class EvalHistory:
