@@ -30,7 +30,6 @@ from hrl_torch.rng import check_seeds
 from hrl_torch.runlock import RunLock
 from hrl_torch.runlog import RunLogger, code_version, hparams_of, make_run_dir, settings_of
 from hrl_torch.signals import StopOnSignal
-from hrl_torch.steps import single_agent_only
 from hrl_torch.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
 #: the most env rows (seeds x envs per seed) a run may ask for: a typo's 10**7 envs per seed
@@ -154,8 +153,6 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         eval_env = make_eval_env(
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
-    if opts.collector:  # (before anything is built on the device or written)
-        single_agent_only(env)
     graph = spec.make_graph()  # built on the CPU (building reads data), then moved
     agents = None
     if isinstance(env, MultiAgentBatchedEnv):  # table sets per seed and agent

@@ -65,6 +65,7 @@ class CollectedSteps(DirectSteps):
     collector = True
 
     def __init__(self, batch_size: int, agent) -> None:
+        single_agent_only(agent)
         super().__init__(batch_size, agent)
         self._source = self._steps = self._resume_obs = None  # created at the first step
 
@@ -72,8 +73,6 @@ class CollectedSteps(DirectSteps):
         """The next frame (a collector over ``env``): the step's output and its transitions."""
         if self._steps is None:
             from hrl_torch.collector import CollectorSource  # TorchRL only on this path
-
-            single_agent_only(env)
 
             self._source = CollectorSource(env, self.agent, self._resume_obs)
             self._steps = self._source.steps()
@@ -97,10 +96,14 @@ class CollectedSteps(DirectSteps):
         self._resume_obs = TensorDict(pending, batch_size=b) if pending else None
 
 
-def single_agent_only(env) -> None:
-    """The collector path steps single-agent envs only: a clear error for any other."""
-    if getattr(env, "n_agents", None) is not None:
+def single_agent_only(env_or_agent) -> None:
+    """The collector path steps single-agent envs only: a clear error for any other.
+
+    ``env_or_agent``: a domain's env, or the agent of one (both say their ``n_agents``).
+    """
+    n = getattr(env_or_agent, "n_agents", None)
+    if n is not None:
         raise ValueError(
-            f"the collector path (--collector) is single-agent, and {type(env).__name__} has "
-            f"{env.n_agents} agents per row: train it without the collector (docs/collectors.md)"
+            f"the collector path (--collector) is single-agent, and {type(env_or_agent).__name__}"
+            f" has {n} agents per row: train it without the collector (docs/collectors.md)"
         )
