@@ -1,9 +1,9 @@
 """The designer's knowledge per domain: task graphs, abstractions and experiment configs.
 
-Importing ``agents`` registers every domain with ``hrl_torch.registry`` (lazily).
+Importing ``agents`` registers every domain with ``hrl_torch.runs.registry`` (lazily).
 """
 
-from hrl_torch import registry
+from hrl_torch.runs import registry
 
 registry.register("taxi", "agents.taxi:DOMAIN")
 registry.register("small-agv", "agents.small_agv:DOMAIN")

@@ -74,13 +74,13 @@ from envs.agv import (
     encode,
     shortest_paths,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import HARLearner, HDRLearner, RARLearner, RVIQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 N_LEVELS = CAPACITY + 1
 ROOT_STATES = N_LOCATIONS * N_LEVELS ** (2 * N_STATIONS) * 2**N_STATIONS

@@ -105,17 +105,17 @@ from envs.four_agv import (
     shortest_paths,
     successors,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.devices import constant_on
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.common.devices import constant_on
+from hrl_torch.common.ops import one_hot_mask
+from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
-from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.ops import one_hot_mask
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 N_JOBS = 2 * N_STATIONS  # DM_1..4, DA_1..4
 ROOT_STATES = 2**N_JOBS

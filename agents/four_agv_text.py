@@ -74,14 +74,14 @@ from envs.four_agv import (
     FourAGVEnv,
     FourAGVTiming,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import Linear
-from hrl_torch.graph import Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Subtask, TaskGraph
 from hrl_torch.learners import RuleLearner
-from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import Linear
+from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 #: values per station in the root state: (part ready 0/1) x (Pi empty / partly full / full)
 STATION_CODES = 6

@@ -45,7 +45,7 @@ from envs.four_rooms import (
     FourRoomsEnv,
     cell_index,
 )
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 
 MOVES = ["North", "South", "East", "West"]
 

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 from agents.taxi import epsilon_first_third, flat_graph
 from envs.grid import TableEnv, optimal_values
-from hrl_torch.config import Make
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.common.config import Make
+from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.trainer import TrainConfig
 
 EVAL_SEED = 1_000_003
 EVAL_EPISODES = 100

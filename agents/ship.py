@@ -39,17 +39,17 @@ from tensordict import TensorDict
 from torch import nn
 
 from envs.ship import MAX_TURN, SIZE, ShipSteeringEnv, out_of_bounds, wrap_degrees
-from hrl_torch.config import Make
-from hrl_torch.devices import constant_on
-from hrl_torch.executor import LEVEL, PRIMITIVE, ExecutorConfig
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import EpsilonGreedy, Greedy
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
-from hrl_torch.hybrid import EpisodeBins, HybridLearner, TriggeredEpsilon
+from hrl_torch.common.config import Make
+from hrl_torch.common.devices import constant_on
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE, ExecutorConfig
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners.hybrid import EpisodeBins, HybridLearner, TriggeredEpsilon
 from hrl_torch.learners.pg import ActorCriticLearner, HPGRLLearner, PGConfig
 from hrl_torch.learners.q_lambda import QLambdaLearner
-from hrl_torch.tiles import TileCoder
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import EpsilonGreedy, Greedy
+from hrl_torch.modules.tiles import TileCoder
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.trainer import TrainConfig
 
 N_DIRECTIONS = 8
 DIAGONAL, STRAIGHT = 0, 1

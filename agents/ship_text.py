@@ -51,14 +51,14 @@ from agents.ship import (
 )
 from agents.ship import bearing as goal_bearing
 from envs.ship import ShipSteeringEnv, wrap_degrees
-from hrl_torch.exploration import TriggeredEpsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
-from hrl_torch.hybrid import HybridLearner
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.learners.hybrid import HybridLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.learners.pg_traces import entry_weights, static_pass
 from hrl_torch.learners.q_lambda import QLambdaLearner
-from hrl_torch.policies import TileGaussianPolicyHead
-from hrl_torch.tiles import TileCoder
+from hrl_torch.modules.exploration import TriggeredEpsilon
+from hrl_torch.modules.policies import TileGaussianPolicyHead
+from hrl_torch.modules.tiles import TileCoder
 
 #: envs per learner of the -text variants (see docs/reproduction.md for what it changes)
 STREAMS = 64
@@ -373,10 +373,10 @@ def pretrain_subtask(subtask: int, seeds, params: TextParams = TEXT, on_step=Non
     Returns the trained learner and ``{"episodes", "env_steps", "seconds", "success_per_block",
     "steps_per_block"}`` (per learner; blocks of 1000 episodes with exploration).
     """
-    from hrl_torch.agent import HierarchicalAgent
-    from hrl_torch.collector import collect
-    from hrl_torch.exploration import Greedy
-    from hrl_torch.rng import BatchRNG
+    from hrl_torch.common.rng import BatchRNG
+    from hrl_torch.modules.exploration import Greedy
+    from hrl_torch.training.agent import HierarchicalAgent
+    from hrl_torch.training.collector import collect
 
     e = params.pretrain_envs
     learner = make_subtask_learner(subtask, len(seeds), params)

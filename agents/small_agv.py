@@ -69,12 +69,9 @@ from envs.agv_small import (
     SmallAGVEnv,
     decode,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.devices import constant_on
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.common.devices import constant_on
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import (
     HARLearner,
     HDRLearner,
@@ -83,7 +80,10 @@ from hrl_torch.learners import (
     RARLearner,
     RVIQLearner,
 )
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 MOVES = ("South", "North", "East", "West")  # env actions 0-3
 

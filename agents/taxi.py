@@ -31,12 +31,12 @@ import torch
 from tensordict import TensorDict
 
 from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
-from hrl_torch.config import Make
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.trainer import TrainConfig
 
 IN_TAXI = 4
 STATION_NAMES = "RGYB"
@@ -140,7 +140,7 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch"):
     if backend == "gymnasium":
         import gymnasium
 
-        from hrl_torch.adapters import GymnasiumBatchEnv
+        from hrl_torch.env.adapters import GymnasiumBatchEnv
 
         return GymnasiumBatchEnv(
             lambda: gymnasium.make("Taxi-v4"), seeds, envs_per_learner, decode=decode

@@ -12,8 +12,8 @@ Beside ``taxi-fuel`` (``agents.taxi_fuel``), three things follow the text:
 - the measure is the average reward per step over the run (the text's "average reward per
   step"): the training reward per step with exploration (``charts/reward_rate``, what an
   online learner earns) and the greedy policy's reward per step over a run of episodes, one
-  after the other (``charts/eval_throughput``; ``hrl_torch.continuing``). A reset step has no
-  reward and no duration, so an episode's end costs no time.
+  after the other (``charts/eval_throughput``; ``hrl_torch.training.continuing``). A reset step has
+  no reward and no duration, so an episode's end costs no time.
 
 Algorithms: ``hpgrl`` (Algorithm 3 at every node, one softmax parameter per (state, child)),
 ``maxq-q`` and flat ``q`` over the 8,750 states, configured as on ``taxi-fuel`` except MAXQ-Q's
@@ -36,14 +36,14 @@ from agents.taxi import (
 )
 from agents.taxi_fuel import HPGRL_PG, NavigateToFuel, taxi_fuel_hierarchy
 from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.domain import AlgoSpec, DomainSpec
-from hrl_torch.exploration import Greedy, linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner
-from hrl_torch.training import TrainConfig
+from hrl_torch.modules.exploration import Greedy, linear_epsilon
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.continuing import ThroughputEvaluator
 
 N_ACTIONS = 7
 #: greedy evaluation: steps per eval row (every row runs episodes one after the other)

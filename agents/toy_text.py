@@ -1,4 +1,4 @@
-"""Unmodified gymnasium toy-text envs through ``hrl_torch.adapters.GymnasiumBatchEnv``.
+"""Unmodified gymnasium toy-text envs through ``hrl_torch.env.adapters.GymnasiumBatchEnv``.
 
 ``FrozenLake-v1`` and ``FrozenLake8x8-v1`` (``is_slippery=False``) and ``CliffWalking-v1``
 (made with ``max_episode_steps=200``: gymnasium registers it without a time limit), with flat
@@ -20,10 +20,10 @@ of equal value, so these learners discount (``gamma`` 0.99). CliffWalking costs 
 from __future__ import annotations
 
 from agents.taxi import epsilon_first_third, flat_graph
-from hrl_torch.config import Make
-from hrl_torch.experiment import AlgoSpec, DomainSpec
+from hrl_torch.common.config import Make
 from hrl_torch.learners import SMDPQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.trainer import TrainConfig
 
 # The best settings of docs/defaults.md (scripts/defaults_table.py, 5 seeds). FrozenLake:
 # optimistic values (+1, the goal's reward); pessimistic ones (-1) never reached the goal, as a
@@ -39,7 +39,7 @@ def _make_env(env_id: str, **kwargs):
             raise ValueError(f"{env_id} runs on the gymnasium backend only, not {backend!r}")
         import gymnasium
 
-        from hrl_torch.adapters import GymnasiumBatchEnv
+        from hrl_torch.env.adapters import GymnasiumBatchEnv
 
         return GymnasiumBatchEnv(lambda: gymnasium.make(env_id, **kwargs), seeds, envs_per_learner)
 

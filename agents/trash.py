@@ -28,7 +28,7 @@ is dumped, or when another robot emptied ``Tk`` first. A can refilled while the 
 its load keeps the subtask going (it collects at ``Tk`` until ``Tk`` is clear). ``NavX`` ends at
 ``X``; ``Root`` never ends (the task is continuing). ``Com`` and ``NotCom`` stand for one
 decision at ``Root`` (Section 6.5.2) and have no termination of their own: the COM agent
-(``hrl_torch.multiagent.Communication``) ends them when their ``U_1`` child ends.
+(``hrl_torch.multiagent.cooperative.Communication``) ends them when their ``U_1`` child ends.
 
 State abstractions (the robot's own variables and the cans, Section 3.1: the cans are
 irrelevant while navigating):
@@ -70,15 +70,15 @@ from envs.trash import (
     WAIT,
     TrashEnv,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.tables import RowSteps
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.modules.tables import RowSteps
+from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 MOVE_NAMES = ["North", "South", "East", "West"]
 #: the children of the cooperative Root (Figure 6.1) or of Com / NotCom (Figure 6.9)

@@ -43,8 +43,8 @@ coordination.
 
 Termination: ``Get_s`` as above; ``Put`` when the taxi is empty; ``Navigate(t)`` at ``t``;
 ``Root`` never (the task is continuing). ``Com`` / ``NotCom`` stand for one decision and have
-no termination of their own: the COM agent (``hrl_torch.multiagent.Communication``) ends them
-when their ``U_1`` child ends, so every ``U_1`` decision is preceded by a communication
+no termination of their own: the COM agent (``hrl_torch.multiagent.cooperative.Communication``)
+ends them when their ``U_1`` child ends, so every ``U_1`` decision is preceded by a communication
 decision.
 
 State abstractions: each taxi stores only its own variables and the stations' statuses
@@ -125,14 +125,19 @@ from envs.two_taxi import (
     WEST,
     TwoTaxiEnv,
 )
-from hrl_torch.config import Make
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import AlgoSpec, DomainSpec, algo_family
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Communication, Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.multiagent.cooperative import (
+    Communication,
+    Cooperation,
+    MultiAgentConfig,
+    cooperative_graph,
+)
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig
 
 #: the text's order of the Root's children: U_1
 U1 = ("GetB", "GetG", "GetR", "GetY", "Wait", "Put")

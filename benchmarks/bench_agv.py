@@ -24,9 +24,9 @@ import torch
 
 def measure(domain: str, algo: str, seeds: int, envs: int, seconds: float) -> dict:
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
-    from hrl_torch.tables import TableBank
+    from hrl_torch.modules.tables import TableBank
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     torch.set_num_threads(1)
     opts = RunOptions(

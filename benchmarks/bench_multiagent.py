@@ -4,7 +4,7 @@
 
 1. Env steps (decision epochs x env rows) per second with random actions, in one run: the
    batched env (``FourAGVEnv``, ``TwoTaxiEnv``) at 5 seeds x 64 envs and one row wrapped as a
-   PettingZoo ``AECEnv`` (``hrl_torch.pettingzoo_env``) stepped in plain Python, agent by agent.
+   PettingZoo ``AECEnv`` (``hrl_torch.env.pettingzoo_env``) stepped in plain Python, agent by agent.
 2. The tables of every learning algorithm of the ``four-agv`` and ``two-taxi`` domains for 5
    seeds: megabytes of their banks (float32 entries) and of the update scratch buffers.
 
@@ -23,10 +23,10 @@ import agents  # noqa: F401  (registers the domains)
 from benchmarks.plain_pettingzoo import steps_per_second
 from envs.four_agv import FourAGVEnv
 from envs.two_taxi import TwoTaxiEnv
-from hrl_torch import registry
-from hrl_torch.multiagent import MultiAgentConfig
-from hrl_torch.pettingzoo_env import make_aec
-from hrl_torch.tables import TableBank
+from hrl_torch.env.pettingzoo_env import make_aec
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.multiagent.cooperative import MultiAgentConfig
+from hrl_torch.runs import registry
 
 ENVS = {"four-agv": FourAGVEnv, "two-taxi": TwoTaxiEnv}
 

@@ -5,7 +5,7 @@ Three routes train the same configurations, each with the same seeds and budget:
 (a) ``population``: the whole grid x seeds as one population (``train_grid``, one process);
 (b) ``sequential``: each configuration as its own run of its seeds (``train_grid`` of one
     configuration, one after another in this process: what a Ray trial trains, without Ray);
-(c) ``ray``: ``hrl_torch.sweep.run_sweep`` (a local Ray with this machine's CPUs, one trial
+(c) ``ray``: ``hrl_torch.runs.sweep.run_sweep`` (a local Ray with this machine's CPUs, one trial
     per configuration, each an ordinary run folder), when Ray imports.
 
 Grids: ``alpha x epsilon`` (``learner.alpha`` x ``exploration.epsilon.end``, routes a and b;
@@ -29,9 +29,9 @@ import time
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.population_grid import train_grid
-from hrl_torch.sweep import configurations
+from hrl_torch.runs import registry
+from hrl_torch.runs.population_grid import train_grid
+from hrl_torch.runs.sweep import configurations
 
 ALPHAS = [0.1, 0.2, 0.3, 0.5]
 ENDS = [0.01, 0.1]
@@ -69,7 +69,7 @@ def local(args, grid: dict) -> dict:
 
 def ray_route(args, grid: dict) -> dict:
     """Route c: ``run_sweep`` into a temporary folder."""
-    from hrl_torch.sweep import run_sweep
+    from hrl_torch.runs.sweep import run_sweep
 
     grid = {**grid, "envs_per_learner": [args.envs], "eval_every": [0]}
     with tempfile.TemporaryDirectory() as out:

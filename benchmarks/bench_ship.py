@@ -20,7 +20,7 @@ import torch
 
 from agents.ship import DOMAIN, PARAMS, make_hybrid, ship_hierarchy
 from envs.ship import ShipSteeringEnv
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 
 def _learner(seeds, online=False):

@@ -41,8 +41,8 @@ import torch
 from agents.taxi import DOMAIN
 from benchmarks import plain_maxq
 from benchmarks.plain_maxq import GymTaxi, Hyper, PlainRun, TableTaxi
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.exploration import Constant, EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import Constant, EpsilonGreedy, Linear
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 ALGO = "maxq-q"
 COMPILE_STEP = False  # ``--compile-step``: the batched trainers compile their step (the CPU)

@@ -3,8 +3,8 @@
 Three trainers of ``agents/taxi.py``'s ``maxq-q`` on the same seeds, in one process: the
 eager step; ``StepGraph(backend="trace")`` (the recorded aten ops replayed from Python, the
 CUDA-graph semantics on the CPU); ``TrainConfig.compile_step`` (those ops compiled by inductor
-into one call, ``hrl_torch.trace_compile``). Blocks of training steps alternate between them;
-the best block of each is reported in thread (CPU) seconds per step, with the eager / compiled
+into one call, ``hrl_torch.training.trace_compile``). Blocks of training steps alternate between
+them; the best block of each is reported in thread (CPU) seconds per step, with the eager / compiled
 ratio, the compile time, and whether the learned tables (int32 bit patterns) and stacks of
 the three are equal.
 
@@ -23,7 +23,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # agents/, envs/, benchmarks/
 
 from benchmarks import bench_taxi  # noqa: E402
-from hrl_torch.cuda_graph import StepGraph  # noqa: E402
+from hrl_torch.training.cuda_graph import StepGraph  # noqa: E402
 
 
 def _same(trainers) -> bool:

@@ -29,8 +29,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import agents  # noqa: E402,F401  (registers the domains)
-from hrl_torch import registry  # noqa: E402
-from hrl_torch.experiment import RunOptions, build_trainer  # noqa: E402
+from hrl_torch.runs import registry  # noqa: E402
+from hrl_torch.runs.experiment import RunOptions, build_trainer  # noqa: E402
 
 
 def _sync(device: str) -> None:
@@ -53,7 +53,7 @@ def _trainer(domain, algo, seeds, envs, device, graph, **kw):
 
 
 def _captured(trainer) -> bool | None:
-    from hrl_torch.cuda_graph import StepGraph
+    from hrl_torch.training.cuda_graph import StepGraph
 
     step = trainer.__dict__.get("_graph")
     return step.graph is not None if isinstance(step, StepGraph) else None

@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gpu_check import _captured, _sync, _trainer, step_speed  # noqa: E402
 
 import agents  # noqa: E402,F401  (registers the domains)
-from hrl_torch import registry  # noqa: E402
+from hrl_torch.runs import registry  # noqa: E402
 
 NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
 NAMED.append(("four-agv", "cooperative"))
@@ -217,8 +217,7 @@ def breakdown(device: str, steps: int = 5) -> list[dict]:
 
 def evaluation(device: str) -> list[dict]:
     """One evaluation, the CPU's way (a read every step) against the off-CPU way, in turn."""
-    from hrl_torch import devices
-
+    from hrl_torch.common import devices
     out = []
     for domain, algo, seeds, episodes in (
         ("taxi", "maxq-q", 1000, 100),

@@ -1,6 +1,6 @@
 """Host reads and data-dependent ops per training step, every registered domain x algorithm.
 
-``hrl_torch.sync_count.HostSyncCounter`` around ``trainer.train_step()`` on the CPU, with the
+``hrl_torch.common.sync_count.HostSyncCounter`` around ``trainer.train_step()`` on the CPU, with the
 static paths a GPU takes (``broadcast.STATIC_ROUNDS``, ``devices.STATIC_SHAPES``): 2 seeds x
 2 envs, 5 steps of warm-up, then the mean over 70 steps (one block of random draws,
 ``BatchRNG.AHEAD`` = 64, included). Deterministic. Prints one markdown table row per
@@ -19,11 +19,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import agents  # noqa: E402,F401  (registers the domains)
-import hrl_torch.broadcast  # noqa: E402
-import hrl_torch.devices  # noqa: E402
-from hrl_torch import registry  # noqa: E402
-from hrl_torch.experiment import RunOptions, build_trainer  # noqa: E402
-from hrl_torch.sync_count import count_train_step  # noqa: E402
+import hrl_torch.common.devices  # noqa: E402
+import hrl_torch.multiagent.broadcast  # noqa: E402
+from hrl_torch.common.sync_count import count_train_step  # noqa: E402
+from hrl_torch.runs import registry  # noqa: E402
+from hrl_torch.runs.experiment import RunOptions, build_trainer  # noqa: E402
 
 
 def row(domain: str, algo: str, steps: int = 70) -> str:
@@ -45,8 +45,8 @@ def row(domain: str, algo: str, steps: int = 70) -> str:
 
 def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
-    hrl_torch.broadcast.STATIC_ROUNDS = True
-    hrl_torch.devices.STATIC_SHAPES = True
+    hrl_torch.multiagent.broadcast.STATIC_ROUNDS = True
+    hrl_torch.common.devices.STATIC_SHAPES = True
     pairs = [a.split("/") for a in argv] or [
         (d, a) for d in registry.names() for a in registry.get(d).algos
     ]

@@ -2,7 +2,7 @@
 
 The reference the batched multi-agent envs will be compared with: one Python ``step`` per agent
 decision, the way a user's own PettingZoo loop runs. An *env step* is a joint decision epoch:
-for ``hrl_torch.pettingzoo_env.MultiAgentAECEnv`` (also inside PettingZoo wrappers) it is read
+for ``hrl_torch.env.pettingzoo_env.MultiAgentAECEnv`` (also inside PettingZoo wrappers) it is read
 from the env's ``epochs`` counter (batched env steps that carried decisions); for any other AEC
 env it is estimated as agent decisions divided by the number of agents (exact for envs where
 every agent acts once per epoch). Resets are timed but not counted: a batched env spends one
@@ -84,7 +84,7 @@ if __name__ == "__main__":
     os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
     torch.set_num_threads(1)
     sys.path.insert(0, ".")
-    from hrl_torch.pettingzoo_env import make_aec
+    from hrl_torch.env.pettingzoo_env import make_aec
     from tests.helpers_multiagent import AsyncToyEnv, SyncToyEnv  # until Chapter 6's domains
 
     for cls in (AsyncToyEnv, SyncToyEnv):

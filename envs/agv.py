@@ -85,8 +85,8 @@ from functools import lru_cache
 import torch
 
 from envs import agv_common as common
-from hrl_torch.env import BatchedEnv
-from hrl_torch.ops import one_hot_mask
+from hrl_torch.common.ops import one_hot_mask
+from hrl_torch.env.batched import BatchedEnv
 
 # -- layout: (name, forward successor, turn successor or None); index = position in the list
 # fmt: off
@@ -432,14 +432,14 @@ class AGVEnv(BatchedEnv):
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/AGV-v0")``: one row of the discrete-time ``AGVEnv``."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: AGVEnv(seeds, n), render_mode=render_mode)
 
 
 def gymnasium_env_continuous(render_mode: str | None = None):
     """``gymnasium.make("hrl/AGVContinuous-v0")``: one row of the continuous-time ``AGVEnv``."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(
         lambda seeds, n: AGVEnv(seeds, n, continuous=True), render_mode=render_mode

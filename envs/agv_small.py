@@ -56,8 +56,8 @@ from functools import lru_cache
 
 import torch
 
-from hrl_torch.devices import constant_on
-from hrl_torch.env import BatchedEnv
+from hrl_torch.common.devices import constant_on
+from hrl_torch.env.batched import BatchedEnv
 
 MAP = (
     "+-----------------------+---+-------+",
@@ -269,6 +269,6 @@ class SmallAGVEnv(BatchedEnv):
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/SmallAGV-v0")``: one row of ``SmallAGVEnv`` as a gymnasium env."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: SmallAGVEnv(seeds, n), render_mode=render_mode)

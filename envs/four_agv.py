@@ -50,7 +50,7 @@ a dead end), 5 ``Idle`` (wait). An action that cannot apply only takes time. An 
 item at a time.
 
 ## Observation
-A TensorDict ``[B]`` (see ``hrl_torch.multiagent_env``). Per agent (``"agents"``, ``[B, n]``):
+A TensorDict ``[B]`` (see ``hrl_torch.env.multiagent_env``). Per agent (``"agents"``, ``[B, n]``):
 ``location`` (100), ``status`` (0 empty, ``i`` carrying part ``i``, ``4 + i`` carrying assembly
 ``i``; 9 values), ``delivery`` (what the agent's last action delivered: 0 nothing, ``i`` part
 ``i`` into ``Di``, ``4 + i`` assembly ``i`` into the warehouse; it keeps its value while the
@@ -128,8 +128,8 @@ import torch
 
 from envs import agv_common as common
 from envs.agv import AGVRewards
-from hrl_torch.multiagent_env import MultiAgentBatchedEnv
-from hrl_torch.ops import one_hot_mask
+from hrl_torch.common.ops import one_hot_mask
+from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
 
 
 # -- layout

@@ -50,7 +50,7 @@ from functools import lru_cache
 import torch
 
 from envs.grid import TableEnv, free_cells, move_table
-from hrl_torch.devices import constant_on
+from hrl_torch.common.devices import constant_on
 
 LAYOUT = (
     "#############",

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.env import BatchedEnv
+from hrl_torch.env.batched import BatchedEnv
 
 NORTH, SOUTH, EAST, WEST = range(4)
 MOVES = ((-1, 0), (1, 0), (0, 1), (0, -1))
@@ -113,8 +113,8 @@ class TableEnv(BatchedEnv):
 
     @classmethod
     def gymnasium(cls, render_mode: str | None = None):
-        """One row of this env as a ``gymnasium.Env`` (``hrl_torch.adapters``)."""
-        from hrl_torch.adapters import BatchedToGymnasium
+        """One row of this env as a ``gymnasium.Env`` (``hrl_torch.env.adapters``)."""
+        from hrl_torch.env.adapters import BatchedToGymnasium
 
         return BatchedToGymnasium(lambda seeds, n: cls(seeds, n), render_mode=render_mode)
 

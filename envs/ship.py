@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.env import BatchedEnv
+from hrl_torch.env.batched import BatchedEnv
 
 SIZE = 1000.0
 MAX_TURN = 15.0  # deg/s, bound of theta_dot and of the action r
@@ -225,8 +225,8 @@ class ShipSteeringEnv(BatchedEnv):
         return rate
 
     def defer_checks(self):
-        """Check turning rates without a device read from now on (``hrl_torch.deferred``)."""
-        from hrl_torch.devices import DeferredCheck
+        """Check turning rates with no device read from now on (``training.deferred``)."""
+        from hrl_torch.common.devices import DeferredCheck
 
         self.deferred_action = DeferredCheck(
             lambda row, saved: _bad_rate(row, float(saved["action"][row]))
@@ -275,7 +275,7 @@ class ShipSteeringEnv(BatchedEnv):
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/ShipSteering-v0")``: one row of ``ShipSteeringEnv``."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: ShipSteeringEnv(seeds, n), render_mode=render_mode)
 

@@ -148,6 +148,6 @@ class TaxiEnv(TableEnv):
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/Taxi-v0")``: one row of ``TaxiEnv`` as a gymnasium env."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: TaxiEnv(seeds, n), render_mode=render_mode)

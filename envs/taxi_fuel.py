@@ -51,7 +51,7 @@ from functools import lru_cache
 import torch
 
 from envs import taxi
-from hrl_torch.env import BatchedEnv
+from hrl_torch.env.batched import BatchedEnv
 
 FUEL_STATION = (3, 2)
 CAPACITY = 12
@@ -173,6 +173,6 @@ class TaxiFuelEnv(BatchedEnv):
 
 def gymnasium_env(render_mode: str | None = None):
     """``gymnasium.make("hrl/TaxiFuel-v0")``: one row of ``TaxiFuelEnv``."""
-    from hrl_torch.adapters import BatchedToGymnasium
+    from hrl_torch.env.adapters import BatchedToGymnasium
 
     return BatchedToGymnasium(lambda seeds, n: TaxiFuelEnv(seeds, n), render_mode=render_mode)

@@ -34,7 +34,7 @@ that has finished and waits for the others (the tau_all scheme of Section 6.1) o
 nothing to collect.
 
 ## Observation
-A TensorDict ``[B]`` (``hrl_torch.multiagent_env``). Shared fields: ``observation`` (the joint
+A TensorDict ``[B]`` (``hrl_torch.env.multiagent_env``). Shared fields: ``observation`` (the joint
 state index, ``encode``: ``(24**n)`` robot codes times 4 can codes, 2,304 values for two
 robots), ``cans`` (bit ``k`` set when can ``T(k+1)`` is full, 4 values), ``t1_full`` and
 ``t2_full`` (0/1), and the undeclared per-step metric ``n_dumped`` (loads dumped at this step).
@@ -79,9 +79,9 @@ from typing import NamedTuple
 
 import torch
 
-from hrl_torch.devices import constant_on
-from hrl_torch.multiagent_env import MultiAgentBatchedEnv
-from hrl_torch.ops import one_hot_mask
+from hrl_torch.common.devices import constant_on
+from hrl_torch.common.ops import one_hot_mask
+from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
 
 MAP = (
     "+---+---+---+---+",
@@ -364,7 +364,7 @@ class TrashEnv(MultiAgentBatchedEnv):
         device: where the state lives.
         own_rewards: each robot learns from its own dumps and costs (their sum is the team
             reward), not from the team reward: with a shared reward a robot's values carry
-            the other robots' +20s as noise (hrl_torch.multiagent_env).
+            the other robots' +20s as noise (hrl_torch.env.multiagent_env).
     """
 
     state_keys = ("location", "carrying", "cans", "dumped", "last_action")

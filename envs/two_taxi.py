@@ -56,7 +56,7 @@ flat joint table would have 4 x 10^6 x 49 entries (1.96 x 10^8), a flat per-taxi
 the joint state 4 x 10^6 x 7.
 
 ## Observation
-A TensorDict ``[B]`` (``hrl_torch.multiagent_env``). Shared fields: ``observation`` (joint state
+A TensorDict ``[B]`` (``hrl_torch.env.multiagent_env``). Shared fields: ``observation`` (joint state
 index, ``125**n * 256`` values: 4,000,000 for two taxis, the text's "4 x 10^6"),
 ``stations`` (``sum_s code_s * 4**s``, 256 values) and ``waiting_R``, ``waiting_G``,
 ``waiting_Y``, ``waiting_B`` (the station codes: 0 empty, ``c`` in 1-3 a passenger for the
@@ -101,8 +101,8 @@ from collections.abc import Sequence
 import torch
 
 from envs.taxi import DROPOFF, EAST, MAP, NORTH, PICKUP, SOUTH, STATIONS, WEST
-from hrl_torch.multiagent_env import MultiAgentBatchedEnv
-from hrl_torch.ops import one_hot_mask
+from hrl_torch.common.ops import one_hot_mask
+from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
 
 N_LOCATIONS = 25
 N_STATIONS = 4

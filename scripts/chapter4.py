@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hrl_torch import cli
-from hrl_torch.report import compare_plot
-from hrl_torch.runlog import read_curves
+from hrl_torch.runs import cli
+from hrl_torch.runs.report import compare_plot
+from hrl_torch.training.runlog import read_curves
 
 EVAL, TRAIN = "charts/eval_throughput", "charts/throughput"
 

@@ -30,10 +30,10 @@ from pathlib import Path
 import torch
 
 from agents import four_rooms, key_door, taxi, taxi_fuel, toy_text
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import DomainSpec, RunOptions, build_trainer
+from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import HDRLearner, MaxQLearner, SMDPQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.runs.experiment import DomainSpec, RunOptions, build_trainer
+from hrl_torch.training.trainer import TrainConfig
 
 LEARNERS = {"maxq-q": MaxQLearner, "hdr": HDRLearner, "q": SMDPQLearner}
 HIERARCHICAL = ("maxq-q", "hdr")

@@ -20,8 +20,8 @@ from chapter4 import plots, run_cli, table, write
 from agents.small_agv import DOMAIN
 from envs import agv_small as agv
 from hrl_torch import analysis as A
-from hrl_torch.continuing import greedy_table
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.continuing import greedy_table
 
 ALGOS = {"HAR": "har", "HDR": "hdr", "RAR": "rar", "MAXQ-Q": "maxq-q", "HH-learning": "hh"}
 HO, RO = 0.75, 0.15

@@ -19,8 +19,8 @@ import torch
 
 from agents.taxi_fuel import DOMAIN
 from envs.taxi_fuel import TaxiFuelEnv, transition_tables
-from hrl_torch.experiment import RunOptions, format_summary, run_experiment
-from hrl_torch.report import TABLE_HEADER, compare_plot, summary_row
+from hrl_torch.runs.experiment import RunOptions, format_summary, run_experiment
+from hrl_torch.runs.report import TABLE_HEADER, compare_plot, summary_row
 
 BUDGETS = {"maxq-q": 1_000_000, "hpgrl": 3_000_000, "q": 3_000_000}
 LABELS = {"maxq-q": "MAXQ-Q", "hpgrl": "HPGRL", "q": "flat Q-learning"}

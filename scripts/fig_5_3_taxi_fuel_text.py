@@ -24,9 +24,9 @@ import torch
 
 from agents.taxi_fuel_text import DOMAIN, EVAL_HORIZON, EVAL_ROWS
 from envs.taxi_fuel_text import TaxiFuelTextEnv, transition_tables
-from hrl_torch.experiment import RunOptions, format_summary, run_experiment
-from hrl_torch.report import compare_plot, median_or_none
-from hrl_torch.runlog import read_curves
+from hrl_torch.runs.experiment import RunOptions, format_summary, run_experiment
+from hrl_torch.runs.report import compare_plot, median_or_none
+from hrl_torch.training.runlog import read_curves
 
 LABELS = {
     "maxq-q": "MAXQ-Q",

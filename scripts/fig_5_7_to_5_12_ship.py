@@ -2,9 +2,9 @@
 
 Each algorithm trains all seeds as one population for a fixed number of episodes per seed,
 driven by ``torchrl.collectors.Collector`` with the hierarchical executor as the policy
-(``hrl_torch.collector``). Per block of 1000 training episodes (with exploration, as the text's
-curves) it records gate successes (Figure 5.7), low-level calls per episode (5.8) and steps per
-episode (5.9); per block of 1000 executions, each low-level subtask's successes (5.10, 5.11).
+(``hrl_torch.training.collector``). Per block of 1000 training episodes (with exploration, as the
+text's curves) it records gate successes (Figure 5.7), low-level calls per episode (5.8) and steps
+per episode (5.9); per block of 1000 executions, each low-level subtask's successes (5.10, 5.11).
 Figure 5.12 draws the learned hybrid's greedy trajectories (root greedy, low-level subtasks
 on their mean action) from the two starts given in Section 5.3.
 
@@ -45,11 +45,11 @@ from agents.ship_text import (
     make_hybrid_text,
 )
 from envs.ship import FIGURE_5_12_STARTS, ShipSteeringEnv
-from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.collector import collect
-from hrl_torch.executor import LEVEL
-from hrl_torch.exploration import Greedy
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import LEVEL
+from hrl_torch.modules.exploration import Greedy
+from hrl_torch.training.agent import HierarchicalAgent
+from hrl_torch.training.collector import collect
 
 GRAPHS = {"hybrid": ship_hierarchy, "flat-pg": flat_graph, "actor-critic": flat_graph}
 MAKERS = {"hybrid": make_hybrid, "flat-pg": make_flat_pg, "actor-critic": make_actor_critic}

@@ -1,6 +1,6 @@
 """Figures 6.11-6.14: two taxis with Cooperative and COM-Cooperative HRL and their baselines.
 
-Every curve is one population run (``hrl_torch.experiment.run_experiment``, the CLI's path)
+Every curve is one population run (``hrl_torch.runs.experiment.run_experiment``, the CLI's path)
 of a two-taxi domain (``--domain``): ``two-taxi-text`` (default: the text's task, a race's loser
 returns empty, one team reward, one arrival process over the grid), ``two-taxi-text-station``
 (the same, an arrival process per station) or ``two-taxi`` (the first build: a ``Get`` ends when
@@ -42,9 +42,9 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from agents.two_taxi_rules import RULES, measure
 from envs.two_taxi import MEAN_INTERARRIVAL
-from hrl_torch.experiment import RunOptions
-from hrl_torch.report import compare_plot, mean_sd, run_variant
-from hrl_torch.runlog import read_curves
+from hrl_torch.runs.experiment import RunOptions
+from hrl_torch.runs.report import compare_plot, mean_sd, run_variant
+from hrl_torch.training.runlog import read_curves
 
 DOMAINS = ("two-taxi-text", "two-taxi-text-station", "two-taxi")
 THROUGHPUT, WAIT, COM_RATE = "charts/throughput", "charts/wait", "charts/communication_rate"

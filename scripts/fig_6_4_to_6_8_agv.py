@@ -1,6 +1,6 @@
 """Figures 6.4-6.8: four-AGV scheduling with Cooperative HRL, its baselines and the rules.
 
-Every curve is one population run (``hrl_torch.experiment.run_experiment``, the CLI's path).
+Every curve is one population run (``hrl_torch.runs.experiment.run_experiment``, the CLI's path).
 Two readings of the task (``--variant``):
 
 ``text`` (default, domain ``four-agv-text``, ``agents/four_agv_text.py``): committed jobs that
@@ -46,8 +46,8 @@ import sys
 from pathlib import Path
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch.experiment import RunOptions
-from hrl_torch.report import compare_plot, figure_cli, mean_sd, run_variant
+from hrl_torch.runs.experiment import RunOptions
+from hrl_torch.runs.report import compare_plot, figure_cli, mean_sd, run_variant
 
 TRAIN = "charts/throughput"
 FIGURES_OLD = {

@@ -19,7 +19,7 @@ import torch
 
 import agents  # noqa: F401  (registers the domains)
 from envs.four_agv import BAYS, DROP_OFF, IDLE, N_MOVES, PICK_UP
-from hrl_torch.experiment import evaluate_run
+from hrl_torch.runs.experiment import evaluate_run
 
 AGV_KINDS = ("moving", "load/unload", "wait bay", "wait full D", "wait empty P", "other idle")
 MACHINE_KINDS = ("busy", "starved", "blocked")

@@ -42,7 +42,7 @@ from agents.ship import (
 )
 from agents.ship_text import TEXT, make_hybrid_text, subtask_coder
 from envs.ship import MAX_TURN, ship_dynamics, wrap_degrees
-from hrl_torch.policies import squash
+from hrl_torch.modules.policies import squash
 
 BANDS = ((0, 45), (45, 90), (90, 135), (135, 181))
 SAMPLES_PER_CONTROL = 3  # a control step is 3 sampling intervals (0.6 s)

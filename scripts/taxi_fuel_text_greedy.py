@@ -19,7 +19,7 @@ import torch
 
 from agents.taxi_fuel_text import DOMAIN, EVAL_HORIZON, EVAL_ROWS
 from envs.taxi_fuel import FILLUP
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 TAIL = 100  # steps with no episode end that mark a loop
 

@@ -11,8 +11,8 @@ import argparse
 from pathlib import Path
 
 from agents.taxi import DOMAIN
-from hrl_torch.experiment import RunOptions, format_summary, run_experiment
-from hrl_torch.report import TABLE_HEADER, compare_plot, summary_row
+from hrl_torch.runs.experiment import RunOptions, format_summary, run_experiment
+from hrl_torch.runs.report import TABLE_HEADER, compare_plot, summary_row
 
 BUDGETS = {"maxq-q": 60_000, "smdp-q": 100_000, "q": 300_000}
 

@@ -15,9 +15,9 @@ import torch
 
 from agents.taxi import PESSIMISTIC_INIT, taxi_hierarchy
 from envs.taxi import TaxiEnv
-from hrl_torch.exploration import EpsilonGreedy, Linear
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 
 def run(init: float, seeds: list[int], steps: int, envs: int) -> Trainer:

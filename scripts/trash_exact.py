@@ -28,10 +28,10 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from agents.trash_optimum import hierarchical_optimum, projected_gain
 from envs.trash import REFILL_PROB, TrashEnv, decode, exact_model
-from hrl_torch import registry
 from hrl_torch.analysis.joint import FirstGreedy, chain_gain, joint_chain, optimal_gain
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.multiagent import MultiAgentAgent, MultiAgentConfig, agent_rng
+from hrl_torch.multiagent.cooperative import MultiAgentAgent, MultiAgentConfig, agent_rng
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 
 def observe_states(n_agents: int):

@@ -25,13 +25,13 @@ import torch
 from agents import trash as T
 from agents.trash import visit_step_size
 from envs.trash import DUMP_REWARD
-from hrl_torch import registry
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.exploration import EpsilonGreedy, Linear
-from hrl_torch.graph import Subtask, TaskGraph
+from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.hierarchy.graph import Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation, CooperativeSubtask, cooperation_levels
+from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.multiagent.cooperative import Cooperation, CooperativeSubtask, cooperation_levels
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 from scripts.trash_exact import exact_gains
 
 

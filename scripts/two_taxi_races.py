@@ -17,7 +17,7 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from agents.two_taxi_rules import RULES, RULES_EXTRA, RulePolicy
 from envs.two_taxi import EMPTY, NO_PASSENGER, STATION_AT, TwoTaxiEnv
-from hrl_torch.experiment import evaluate_run
+from hrl_torch.runs.experiment import evaluate_run
 
 STEPS, BURN_IN = 2_200, 200
 

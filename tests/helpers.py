@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.env import BatchedEnv
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.env.batched import BatchedEnv
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 
 
 class TableEnv(BatchedEnv):

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import torch
 
-from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
 
 
 class AsyncToyEnv(MultiAgentBatchedEnv):

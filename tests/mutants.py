@@ -91,7 +91,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-no-abort",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "popped = below(cut) & active",
         "popped = cut & active",
         "a terminating subtask does not abort the subtasks it called",
@@ -99,7 +99,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-reward-not-restored",
-        "hrl_torch/stack.py",
+        "hrl_torch/execution/stack.py",
         "fields = {k: v.to(mine[k].device).clone() for k, v in state.items()}",
         'fields = {k: v.to(mine[k].device).clone() if k != "reward" else mine[k] '
         "for k, v in state.items()}",
@@ -108,7 +108,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tiles-offset-sign",
-        "hrl_torch/tiles.py",
+        "hrl_torch/modules/tiles.py",
         "cell = (((points - low) * scale).unsqueeze(1) + offsets).floor_()",
         "cell = (((points - low) * scale).unsqueeze(1) - offsets).floor_()",
         "tilings displaced the wrong way",
@@ -132,7 +132,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "env-elapsed-not-restored",
-        "hrl_torch/env.py",
+        "hrl_torch/env/batched.py",
         'for k in (*self.state_keys, "elapsed", "done"):',
         'for k in (*self.state_keys, "done"):',
         "an env's episode clock is not restored from a checkpoint",
@@ -140,7 +140,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "softmax-score-without-pi",
-        "hrl_torch/policies.py",
+        "hrl_torch/modules/policies.py",
         "score = torch.where(ok, softmax_score(probs, pick), 0.0)",
         "score = torch.where(ok, torch.nn.functional.one_hot(pick, probs.shape[-1]).float(), 0.0)",
         "softmax likelihood ratio without its -pi term",
@@ -172,7 +172,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "gaussian-score-sign",
-        "hrl_torch/policies.py",
+        "hrl_torch/modules/policies.py",
         "per_tile = (u - mean) / (sigma**2 * n_tiles)",
         "per_tile = (mean - u) / (sigma**2 * n_tiles)",
         "HPGRL's Gaussian score with its sign flipped",
@@ -180,7 +180,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "gaussian-score-squashed",
-        "hrl_torch/policies.py",
+        "hrl_torch/modules/policies.py",
         "score = gaussian_tile_score(pre, mean, tiles.shape[-1], self.sigma)",
         "score = gaussian_tile_score(squash(pre, self.low, self.high), mean, tiles.shape[-1], "
         "self.sigma)",
@@ -326,7 +326,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- tables and exploration
     Mutant(
         "tables-same-step-once",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "keep = rho**n",
         "keep = rho * (n > 0) + (n == 0)",
         "several same-step updates of one entry count as one",
@@ -334,7 +334,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-row-stride",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "return learner * self.stride + offset + state * n_cols + col",
         "return learner * self.stride + offset + state + col",
         "table entries indexed without the row stride",
@@ -342,7 +342,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-masked-read",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "flat_index = torch.where(valid, flat_index, self.sentinel)",
         "flat_index = flat_index",
         "masked reads return real entries instead of 0",
@@ -350,7 +350,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "epsilon-inverted",
-        "hrl_torch/exploration.py",
+        "hrl_torch/modules/exploration.py",
         "explore = u[..., a] < _at_rows(self.epsilon(step), learner, u[..., a])",
         "explore = u[..., a] >= _at_rows(self.epsilon(step), learner, u[..., a])",
         "epsilon-greedy explores with probability 1 - epsilon",
@@ -358,7 +358,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "linear-schedule-direction",
-        "hrl_torch/exploration.py",
+        "hrl_torch/modules/exploration.py",
         "return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)",
         "return self.end if frac == 1.0 else self.start + frac * (self.start - self.end)",
         "a linear schedule moves away from its end value",
@@ -366,7 +366,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "uniform-choice-skips-last",
-        "hrl_torch/exploration.py",
+        "hrl_torch/modules/exploration.py",
         "random_choice = argmax_last(per_child.masked_fill(blocked, -1.0))",
         "random_choice = argmax_last(per_child.masked_fill(blocked, -1.0)[..., :-1])",
         "a random choice never picks the last available child",
@@ -375,7 +375,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- executor and graph
     Mutant(
         "executor-greedy-ignores-ancestors",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'f["greedy"] = own.cummin(1).values',
         'f["greedy"] = own',
         "a child counts as greedy although an ancestor explored",
@@ -387,7 +387,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-emits-for-popped-level",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "emit = chose & child_ended",
         "emit = chose & popped",
         "transitions emitted for the level that ended instead of its parent",
@@ -395,7 +395,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-episode-end-not-terminal",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "ends = (own | env_ended, ended_own)",
         "ends = (own, ended_own)",
         "the end of the episode is not terminal for the subtasks on the stack",
@@ -403,7 +403,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-undiscounted-sum",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'f["disc_reward"] = f["disc_reward"] + discount(self.gamma, f["time"]) * r',
         'f["disc_reward"] = f["disc_reward"] + r',
         "the discounted reward of a child is summed without discounting",
@@ -411,7 +411,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-shaping-undiscounted",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'f["internal"] = f["internal"] + active * discount(self.gamma, f["time"]) * (',
         'f["internal"] = f["internal"] + active * (',
         "shaping rewards summed without discounting",
@@ -419,7 +419,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-timeout-off-by-one",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         '(f["inv_steps"] >= limit)',
         '(f["inv_steps"] > limit)',
         "the guard lets a subtask run one step more than its limit",
@@ -427,7 +427,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "graph-terminated-child-available",
-        "hrl_torch/graph.py",
+        "hrl_torch/hierarchy/graph.py",
         "available = self._available(obs, initiable & ~blocked)",
         "available = self._available(obs, initiable)",
         "a child already terminated can be chosen",
@@ -435,7 +435,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "graph-event-blocks",
-        "hrl_torch/graph.py",
+        "hrl_torch/hierarchy/graph.py",
         "blocked = terminated & ~self.node_event",
         "blocked = terminated",
         "event-terminated subtasks are blocked from starting",
@@ -444,7 +444,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- env base, checkpoints
     Mutant(
         "env-reward-on-reset-row",
-        "hrl_torch/env.py",
+        "hrl_torch/env/batched.py",
         "reward = torch.where(was_done, zero, reward.float())",
         "reward = reward.float()",
         "a row that resets reports the reward of a step it never took",
@@ -452,7 +452,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "env-truncation-late",
-        "hrl_torch/env.py",
+        "hrl_torch/env/batched.py",
         "truncated = (elapsed >= self.max_episode_steps) & fresh",
         "truncated = (elapsed > self.max_episode_steps) & fresh",
         "episodes truncated one step after the time limit",
@@ -460,7 +460,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "checkpoint-format-unchecked",
-        "hrl_torch/checkpoint.py",
+        "hrl_torch/common/checkpoint.py",
         'if not isinstance(state, dict) or state.get("format") not in READABLE:',
         "if not isinstance(state, dict):",
         "a file of another format loads as a checkpoint",
@@ -468,7 +468,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "checkpoint-unsafe-load",
-        "hrl_torch/checkpoint.py",
+        "hrl_torch/common/checkpoint.py",
         'state = torch.load(path, map_location="cpu", weights_only=True)',
         'state = torch.load(path, map_location="cpu", weights_only=False)',
         "checkpoints unpickled with arbitrary code execution",
@@ -476,7 +476,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "rng-stream-ignores-counter",
-        "hrl_torch/rng.py",
+        "hrl_torch/common/rng.py",
         "self.counter += n",
         "self.counter += 0",
         "reserved random numbers are drawn again by the next step",
@@ -484,7 +484,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "eval-rng-not-restarted",
-        "hrl_torch/evaluation.py",
+        "hrl_torch/training/evaluation.py",
         'agent = trainer.evaluation_agent(env, "eval-explore")',
         'agent = trainer.evaluation_agent(env, f"eval-explore-{trainer.step}")',
         "greedy evaluation's tie-breaking draws differ from one evaluation to the next",
@@ -492,7 +492,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "agent-clock-frozen",
-        "hrl_torch/agent.py",
+        "hrl_torch/training/agent.py",
         "self.clock += self.executor.envs_per_learner",
         "self.clock += 0",
         "the schedules' clock never advances (epsilon and step sizes stay at their start)",
@@ -500,7 +500,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "heads-load-no-copy",
-        "hrl_torch/heads.py",
+        "hrl_torch/modules/heads.py",
         "view.copy_(state_dict[name])",
         "view.copy_(view)",
         "loading a checkpoint leaves the heads' tables as they were",
@@ -508,7 +508,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "stack-clear-keeps-done",
-        "hrl_torch/stack.py",
+        "hrl_torch/execution/stack.py",
         "        out.done = torch.zeros_like(self.done)\n",
         "",
         "emptying the Task-Stacks keeps rows marked as waiting for a reset",
@@ -524,7 +524,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-stats-not-restored",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         '        self.stats.load_state_dict(state["stats"])\n',
         "",
         "the subtask statistics since the last log are lost on resume (logs differ)",
@@ -532,7 +532,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "evaluator-sums-not-restored",
-        "hrl_torch/continuing.py",
+        "hrl_torch/training/continuing.py",
         'self._sums = state["sums"].clone() if "sums" in state else None',
         "self._sums = None",
         "a continuing task's training throughput since the last log is lost on resume",
@@ -540,7 +540,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "last-evaluation-not-restored",
-        "hrl_torch/evaluation.py",
+        "hrl_torch/training/evaluation.py",
         'self.last_success = [float(x) for x in last.get("success", [])]',
         "self.last_success = []",
         "a finished run resumed has no result (its latest evaluation was not saved)",
@@ -548,7 +548,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-durations-unchecked",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "check = (reward + tau) * 0 + tau  # NaN for inf/NaN in either, < 0 for d < 0",
         "check = reward * 0  # NaN for inf/NaN in either, < 0 for d < 0",
         "NaN and negative durations reach the tables",
@@ -556,7 +556,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "step-size-upper-bound-unchecked",
-        "hrl_torch/validate.py",
+        "hrl_torch/learners/validate.py",
         "ok = math.isfinite(v) and (v > low if open_low else v >= low) and v <= high",
         "ok = math.isfinite(v) and (v > low if open_low else v >= low)",
         "step sizes and discounts above 1 are accepted",
@@ -598,7 +598,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- the rewritten core
     Mutant(
         "executor-scan-rechooses-first",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "            chose = ~kept & (lv < new)\n",
         "            chose = (lv > old) & (lv < new)\n",
         "a subtask on top that chooses its next child keeps the old child's sums and start state",
@@ -606,7 +606,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-scan-going-not-updated",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "self._chooses_at_1 = torch.where(g.inst_composite_1, g.inst_depth_1, -1)",
         "self._chooses_at_1 = g.inst_depth_1",
         "the level-by-level descent goes on choosing below the primitive on top",
@@ -614,7 +614,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-rechoice-restarts-guard",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "            invoked = (lv > old) & (lv <= new)\n",
         "            invoked = (lv >= old) & (lv <= new)\n",
         "a subtask choosing its next child counts as a new invocation (guard and calls restart)",
@@ -622,7 +622,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-primitive-start-state-stale",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'f["start_state"] = torch.where(fresh, ctx.abstract.gather(1, node), f["start_state"])',
         'f["start_state"] = torch.where(chose, ctx.abstract.gather(1, node), f["start_state"])',
         "the primitive pushed keeps the abstract state of an earlier step",
@@ -630,7 +630,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-pops-in-place",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'f["inst"] = inst.masked_fill(popped, -1)',
         'f["inst"] = inst.masked_fill_(popped, -1)',
         "observe writes its pops into the stack it was given (an old stack changes)",
@@ -638,7 +638,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-stats-durations-of-running",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "values = torch.stack([invoked, popped, ended_own & popped, inv_steps * popped]).float()",
         "values = torch.stack([invoked, popped, ended_own & popped, inv_steps]).float()",
         "the subtask statistics add the lengths of invocations still running",
@@ -646,7 +646,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tabulated-terminated-blocked-swapped",
-        "hrl_torch/graph.py",
+        "hrl_torch/hierarchy/graph.py",
         "lookup(self.tab_terminated, s),\n            lookup(self.tab_blocked, s),",
         "lookup(self.tab_blocked, s),\n            lookup(self.tab_terminated, s),",
         "a tabulated graph's lookups return blocked as terminated and vice versa",
@@ -662,7 +662,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "value-policy-stale-choices",
-        "hrl_torch/rng.py",
+        "hrl_torch/common/rng.py",
         "        self.counter = self.rng.reserve(1)\n",
         "        self.counter = self.counter or self.rng.reserve(1)\n",
         "the choices read the first step's random numbers at every step",
@@ -670,7 +670,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-group-slice-short",
-        "hrl_torch/eval_plan.py",
+        "hrl_torch/modules/eval_plan.py",
         "cached = [rows + kids.view(-1, self.cols.shape[0]) for kids in self.group_children]",
         "cached = [rows + kids.view(-1, self.cols.shape[0]).roll(1, 0) "
         "for kids in self.group_children]",
@@ -679,7 +679,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-evaluates-primitives",
-        "hrl_torch/eval_plan.py",
+        "hrl_torch/modules/eval_plan.py",
         "groups = layout.groups[1:]",
         "groups = layout.groups[0:]",
         "the EvalPlan also evaluates the primitive tables (their values overwritten by 0)",
@@ -687,7 +687,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "collector-next-stack-not-written",
-        "hrl_torch/collector.py",
+        "hrl_torch/training/collector.py",
         '        tensordict.set(("next", STACK), stack)\n',
         "",
         "the collector's policy does not write the next Task-Stack into the rollout",
@@ -695,7 +695,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "collector-first-frame-learned",
-        "hrl_torch/collector.py",
+        "hrl_torch/training/collector.py",
         "if self.fresh:  # the start: the root pushed at the reset observations",
         "if False:  # the start: the root pushed at the reset observations",
         "the collector path treats the start's frame as a step (clock one step ahead)",
@@ -703,7 +703,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-blend-toward-old",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "flat.put_(index, mean + keep * (old - mean))",
         "flat.put_(index, old + keep * (mean - old))",
         "table updates keep alpha of the old value instead of 1 - alpha",
@@ -711,7 +711,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-sum-not-mean",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "mean = total / n.clamp_min(1.0)",
         "mean = total",
         "same-step updates of one entry move toward the sum of their targets",
@@ -719,7 +719,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-scratch-not-cleared",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "        self._scratch.index_fill_(1, index, 0.0)\n",
         "",
         "the update's scratch buffer keeps the counts and sums of earlier updates",
@@ -735,7 +735,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "com-counted-while-running",
-        "hrl_torch/communication.py",
+        "hrl_torch/multiagent/communication.py",
         "asked = executor.invoked[:, self.depth] & (node == self.com)",
         "asked = (inst >= 0) & (node == self.com)",
         "every step under Com counts as a communication, not each invocation",
@@ -743,7 +743,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "com-never-cut",
-        "hrl_torch/multiagent.py",
+        "hrl_torch/multiagent/cooperative.py",
         "cut[:, d] = popped[:, d + 1] & ended_own[:, : d + 2].any(1)",
         "cut[:, d] = False",
         "Com / NotCom are never cut: one communication decision for ever",
@@ -751,7 +751,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "ratio-of-wrong-sums",
-        "hrl_torch/continuing.py",
+        "hrl_torch/training/continuing.py",
         "return torch.where(den > 0, sums[3] / den.clamp_min(1e-12), torch.nan).float()",
         "return torch.where(den > 0, sums[3] / sums[2].clamp_min(1e-12), torch.nan).float()",
         "the waiting time per passenger is divided by the time, not the deliveries",
@@ -759,7 +759,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "stats-of-first-table-sets",
-        "hrl_torch/metrics.py",
+        "hrl_torch/training/metrics.py",
         "return counts.view(n_learners, -1, *counts.shape[1:]).sum(1)",
         "return counts[:n_learners]",
         "a multi-agent run logs the first P table sets' statistics as the seeds'",
@@ -768,7 +768,7 @@ MUTANTS: list[Mutant] = [
     # ---------------------------------------------------------------- runs that survive users
     Mutant(
         "resume-keeps-rows-after-checkpoint",
-        "hrl_torch/runlog.py",
+        "hrl_torch/training/runlog.py",
         "kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]",
         "kept = rows",
         "a resumed run logs the steps after the checkpoint twice",
@@ -776,7 +776,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "continuation-rescheduled",
-        "hrl_torch/experiment.py",
+        "hrl_torch/runs/experiment.py",
         "schedule_steps = opts.schedule_steps or config.steps",
         "schedule_steps = config.steps",
         "a longer budget rebuilds the exploration schedules instead of keeping the original's",
@@ -784,7 +784,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "signal-ignored",
-        "hrl_torch/trainer.py",
+        "hrl_torch/training/trainer.py",
         "while self.step < total and stop.signal is None:",
         "while self.step < total:",
         "Ctrl-C is recorded but training goes on to the end",
@@ -792,7 +792,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "interrupted-run-evaluates",
-        "hrl_torch/trainer.py",
+        "hrl_torch/training/trainer.py",
         "if self.eval_env is not None and stop.signal is None:",
         "if self.eval_env is not None:",
         "an interrupted run adds an evaluation the uninterrupted run does not have",
@@ -800,7 +800,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "resume-accepts-any-change",
-        "hrl_torch/experiment.py",
+        "hrl_torch/runs/experiment.py",
         "if key in recorded and key not in CONTINUE_KEYS and not same(value, recorded[key]):",
         "if False:",
         "a resume with other seeds or envs is accepted",
@@ -808,7 +808,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "skipped-step-teaches",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "emit, taught = emit & ~bad[:, None], stepped & ~bad",
         "emit, taught = emit, stepped",
         "a skipped bad step still produces learning targets",
@@ -816,7 +816,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "envcheck-no-auto-reset-check",
-        "hrl_torch/envcheck.py",
+        "hrl_torch/env/envcheck.py",
         "if not torch.equal(reset, ended):",
         "if False:",
         "the env check misses an env that does not auto-reset ended rows",
@@ -824,7 +824,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "eval-records-root-level",
-        "hrl_torch/evaluation.py",
+        "hrl_torch/training/evaluation.py",
         'new = executor.invoked[:, 1] & ~now["finished"]',
         'new = executor.invoked[:, 0] & ~now["finished"]',
         "evaluation records the root's own invocation, not its decisions",
@@ -832,7 +832,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "leaf-monitor-high-is-low",
-        "hrl_torch/monitor.py",
+        "hrl_torch/analysis/monitor.py",
         'reward.masked_fill(~valid, -torch.inf), "amax")',
         'reward.masked_fill(~valid, torch.inf), "amin")',
         "the leaf-reward monitor keeps the lowest reward twice and never sees a spread",
@@ -840,7 +840,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "registry-clash-allowed",
-        "hrl_torch/registry.py",
+        "hrl_torch/runs/registry.py",
         "    if name in _DOMAINS:\n        raise",
         "    if False:\n        raise",
         "a plugin silently replaces a built-in domain of the same name",
@@ -849,7 +849,7 @@ MUTANTS: list[Mutant] = [
     # -- the hot path of issue 9 (path tables, descent, shared stores, blocks of draws)
     Mutant(
         "graph-path-child-slots-zero",
-        "hrl_torch/graph_compile.py",
+        "hrl_torch/hierarchy/graph_compile.py",
         "level, slot, i = level - 1, inst_slot[i], inst_parent[i]",
         "level, slot, i = level - 1, 0, inst_parent[i]",
         "the path tables record child slot 0 for every level of a stack",
@@ -857,7 +857,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-done-rows-push",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         'code = torch.take(g.inst_start_code, top).masked_fill(f["done"], g.n_choosers)',
         "code = torch.take(g.inst_start_code, top)",
         "a row whose episode ended starts at the root again before its reset",
@@ -865,7 +865,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-descent-one-round-short",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "        for _ in range(self.depth - 1):\n"
         "            code = torch.take(nxt, self._code_base + code)",
         "        for _ in range(self.depth - 2):\n"
@@ -875,7 +875,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-descent-greedy-of-row-zero",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "own = torch.take(flags, self._greedy_base + g.path_chooser_1.index_select(0, top1))",
         "own = torch.take(flags, g.path_chooser_1.index_select(0, top1))",
         "every row's greedy flags are read from the first row's choices",
@@ -883,7 +883,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-spans-keep-old-top",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "            kept = lv < old\n",
         "            kept = lv <= old\n",
         "the subtask on top keeps its old child slot after choosing a new child",
@@ -891,7 +891,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-guard-bound-late",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "self.guard_quiet = limit - longest - 1",
         "self.guard_quiet = limit - longest + 3",
         "the guard is skipped for a few steps too many and cuts a subtask late",
@@ -899,7 +899,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-new-invocation-old-features",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "feats = torch.where(invoked[..., None], new_features.gather(1, at), feats)",
         "feats = torch.where(invoked[..., None], feats, feats)",
         "a new invocation of a node with memory records its start features with the old memory",
@@ -907,7 +907,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "executor-compact-children-unscattered",
-        "hrl_torch/descent.py",
+        "hrl_torch/execution/descent.py",
         "            return out.index_copy_(0, rows, values)",
         "            return out.index_copy_(0, rows.flip(0), values)",
         "choices made for the choosing rows only are scattered back to the wrong rows",
@@ -923,7 +923,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-plain-update-wrong-step",
-        "hrl_torch/tables.py",
+        "hrl_torch/modules/tables.py",
         "new = mean + rho * (old - mean)  # (the n = 1 case below, op for op)",
         "new = mean + (1.0 - rho) * (old - mean)  # (the n = 1 case below, op for op)",
         "the plain update (rows of different learners) moves by 1 - alpha instead of alpha",
@@ -931,7 +931,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-rows-always-distinct",
-        "hrl_torch/executor.py",
+        "hrl_torch/execution/executor.py",
         "self.learner.distinct_rows = learner.unique().numel() == learner.numel()",
         "self.learner.distinct_rows = True",
         "rows of one learner take the plain update one after the other (not order-free)",
@@ -939,7 +939,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "plan-per-state-without-learner",
-        "hrl_torch/eval_plan.py",
+        "hrl_torch/modules/eval_plan.py",
         "row = self.learner_base(ctx.learner, n_states, 1) + ctx.table_row",
         "row = ctx.table_row",
         "on a tabulated graph every learner reads the first learner's tables",
@@ -947,7 +947,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "rng-block-reads-first-draw",
-        "hrl_torch/rng.py",
+        "hrl_torch/common/rng.py",
         "        return block[1][counter - block[0]]",
         "        return block[1][0]",
         "draws computed ahead hand out the block's first draw again",
@@ -955,7 +955,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "rng-rows-draw-first-rows",
-        "hrl_torch/rng.py",
+        "hrl_torch/common/rng.py",
         "row_key = row_key.index_select(0, rows)",
         "row_key = row_key[: rows.shape[0]]",
         "a draw for some rows reads the first rows' streams",
@@ -963,7 +963,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "ops-add-at-flat-stride",
-        "hrl_torch/ops.py",
+        "hrl_torch/common/ops.py",
         "flat = flat + index[k] * table.stride(k)",
         "flat = flat + index[k] * table.stride(-1)",
         "the flat scatter of large batches ignores the table's row stride",
@@ -971,7 +971,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "ops-columns-transposed-back",
-        "hrl_torch/ops.py",
+        "hrl_torch/common/ops.py",
         "return picked.transpose(0, 1).contiguous().view(shape)",
         "return picked.contiguous().view(shape)",
         "large column gathers come back transposed",
@@ -979,7 +979,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "frozen-values-ignore-learner",
-        "hrl_torch/agent.py",
+        "hrl_torch/training/agent.py",
         "row = ctx.learner * self.n_states + ctx.table_row",
         "row = ctx.table_row",
         "a greedy evaluation looks up every learner's values in learner 0's tables",
@@ -987,7 +987,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "frozen-values-owner-order",
-        "hrl_torch/agent.py",
+        "hrl_torch/training/agent.py",
         "owner = torch.arange(learner.n_learners, device=device).repeat_interleave(n_states)",
         "owner = torch.arange(learner.n_learners, device=device).repeat(n_states)",
         "the once-per-state evaluation pairs states with the wrong learners",
@@ -995,7 +995,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "ops-argmax-last-keepdim-dropped",
-        "hrl_torch/ops.py",
+        "hrl_torch/common/ops.py",
         "return x.max(-1, keepdim=keepdim).indices",
         "return x.max(-1).indices",
         "the fast argmax of many rows ignores keepdim (MAXQ's internal best child gathers wrong)",

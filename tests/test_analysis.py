@@ -7,8 +7,8 @@ from tensordict import TensorDict
 from agents.small_agv import small_agv_hierarchy
 from envs import agv_small as agv
 from hrl_torch import analysis as A
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.execution.executor import HierarchicalExecutor
+from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
 
 
 def model_of(next_state, reward):

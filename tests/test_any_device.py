@@ -12,12 +12,12 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.cuda_graph import StepGraph
-from hrl_torch.deferred import raise_pending
-from hrl_torch.executor import BadStepError
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.sync_count import HostSyncCounter, count_train_step
+from hrl_torch.common.sync_count import HostSyncCounter, count_train_step
+from hrl_torch.execution.executor import BadStepError
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.cuda_graph import StepGraph
+from hrl_torch.training.deferred import raise_pending
 
 PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
 #: configurations whose training step makes no host read (the counting test guards them):
@@ -82,11 +82,11 @@ def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo
 
 @pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
 def test_a_training_step_reads_nothing_back(domain, algo, monkeypatch):
-    import hrl_torch.broadcast
-    import hrl_torch.devices
+    import hrl_torch.common.devices
+    import hrl_torch.multiagent.broadcast
 
-    monkeypatch.setattr(hrl_torch.broadcast, "STATIC_ROUNDS", True)  # as off the CPU
-    monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", True)  # (masks, as off the CPU)
+    monkeypatch.setattr(hrl_torch.multiagent.broadcast, "STATIC_ROUNDS", True)  # as off the CPU
+    monkeypatch.setattr(hrl_torch.common.devices, "STATIC_SHAPES", True)  # (masks, as off the CPU)
     trainer = build_trainer(registry.get(domain), algo, _options())
     # from the first step on, past a block of random draws (BatchRNG.AHEAD = 64)
     counter = count_train_step(trainer, 70, stacks=True)
@@ -174,11 +174,11 @@ def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_m
     ],
 )
 def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeypatch):
-    import hrl_torch.devices
+    import hrl_torch.common.devices
 
     tables = []
     for static in (False, True):  # (the CPU's row compaction; the masks used off the CPU)
-        monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", static)
+        monkeypatch.setattr(hrl_torch.common.devices, "STATIC_SHAPES", static)
         opts = _options()
         opts.envs_per_learner = 3
         trainer = build_trainer(registry.get(domain), algo, opts)
@@ -250,9 +250,9 @@ def test_the_collector_path_reads_nothing_back_per_step(domain, algo, monkeypatc
     back by the rollout reset the executor's quiet subtask guard, which then read every step.)
     TorchRL's collector refuses ``meta``, so this counts on the CPU with the off-CPU rules.
     """
-    import hrl_torch.devices
+    import hrl_torch.common.devices
 
-    monkeypatch.setattr(hrl_torch.devices, "STATIC_SHAPES", True)
+    monkeypatch.setattr(hrl_torch.common.devices, "STATIC_SHAPES", True)
     opts = _options()
     opts.collector = True
     trainer = build_trainer(registry.get(domain), algo, opts)
@@ -263,9 +263,9 @@ def test_the_collector_path_reads_nothing_back_per_step(domain, algo, monkeypatc
 
 def test_the_documented_two_rooms_example_replays_on_meta():
     """The walkthrough's env (docs/your-own-hierarchy.md) keeps the any-device rules."""
-    from hrl_torch.exploration import EpsilonGreedy
     from hrl_torch.learners import MaxQLearner
-    from hrl_torch.trainer import TrainConfig, Trainer
+    from hrl_torch.modules.exploration import EpsilonGreedy
+    from hrl_torch.training.trainer import TrainConfig, Trainer
     from scripts.example_two_rooms import TwoRoomsEnv, two_rooms_hierarchy
 
     graph = two_rooms_hierarchy()

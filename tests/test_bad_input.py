@@ -7,8 +7,14 @@ import pytest
 import torch
 
 from envs.taxi import TaxiEnv
-from hrl_torch.executor import LEVEL, PRIMITIVE, BadStepError, ExecutorConfig, HierarchicalExecutor
-from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.execution.executor import (
+    LEVEL,
+    PRIMITIVE,
+    BadStepError,
+    ExecutorConfig,
+    HierarchicalExecutor,
+)
+from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
 from hrl_torch.learners import HARLearner, MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.learners.q_lambda import QLambdaLearner
@@ -97,9 +103,9 @@ class SometimesNaN(TaxiEnv):
 
 def test_skipping_bad_steps_trains_on_the_rest(tmp_path):
     import agents  # noqa: F401  (registers the domains)
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
-    from hrl_torch.runlog import RunLogger
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
+    from hrl_torch.training.runlog import RunLogger
 
     taxi = registry.get("taxi")
     spec = replace(taxi.algos["maxq-q"], executor=ExecutorConfig(on_bad_step="skip"))
@@ -119,8 +125,8 @@ def test_skipping_bad_steps_trains_on_the_rest(tmp_path):
 
 def test_a_learner_with_the_wrong_number_of_table_sets_is_refused():
     from agents.taxi import taxi_hierarchy
-    from hrl_torch.exploration import Greedy
-    from hrl_torch.trainer import Trainer
+    from hrl_torch.modules.exploration import Greedy
+    from hrl_torch.training.trainer import Trainer
 
     graph = taxi_hierarchy()
     learner = MaxQLearner(graph, n_learners=3)

@@ -9,9 +9,14 @@ others' ``U_1`` code: 0 TaskA, 1 TaskB, 2 Wait, 3 none).
 import pytest
 import torch
 
-from hrl_torch.exploration import EpsilonGreedy
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation, MultiAgentAgent, agent_rng, cooperative_graph
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.multiagent.cooperative import (
+    Cooperation,
+    MultiAgentAgent,
+    agent_rng,
+    cooperative_graph,
+)
 from tests.test_multiagent import AgentIndexPolicy, Clock, graph
 
 NONE, TASK_A, TASK_B = 3, 0, 1
@@ -92,13 +97,13 @@ def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
 def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
     """All n - 1 re-choosing rounds (no host read) equal stopping when no code changed."""
     import agents  # noqa: F401
-    import hrl_torch.broadcast
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    import hrl_torch.multiagent.broadcast
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     tables = {}
     for static in (False, True):
-        monkeypatch.setattr(hrl_torch.broadcast, "STATIC_ROUNDS", static)
+        monkeypatch.setattr(hrl_torch.multiagent.broadcast, "STATIC_ROUNDS", static)
         opts = RunOptions(seeds=[0, 1], envs_per_learner=4, progress=False, check_env=False)
         opts.eval_episodes = 0
         trainer = build_trainer(registry.get(domain), "cooperative", opts)

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from hrl_torch.checkpoint import FORMAT, CheckpointError, load_checkpoint, save_checkpoint
+from hrl_torch.common.checkpoint import FORMAT, CheckpointError, load_checkpoint, save_checkpoint
 
 
 def test_round_trip_and_atomic_write(tmp_path):
@@ -44,8 +44,8 @@ def test_missing_and_truncated_files(tmp_path):
 
 def test_resuming_a_finished_run_returns_its_result(tmp_path):
     import agents  # noqa: F401  (registers the domains)
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(
         seeds=[0], envs_per_learner=4, steps=80, eval_every=40, eval_episodes=2, progress=False

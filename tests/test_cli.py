@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from hrl_torch.cli import main
+from hrl_torch.runs.cli import main
 
 
 def run(tmp_path, *extra):
@@ -54,7 +54,7 @@ def test_train_writes_a_run_folder_and_resumes(tmp_path, capsys):
     assert hparams["learner"]["class"] == "MaxQLearner" and hparams["learner"]["gamma"] == 1.0
     assert hparams["learner"]["alpha"] == "Constant(value=0.5)"
     assert hparams["exploration"]["epsilon"].startswith("Linear(start=1.0, end=0.05")
-    from hrl_torch.checkpoint import load_checkpoint
+    from hrl_torch.common.checkpoint import load_checkpoint
 
     assert load_checkpoint(run_dir / "checkpoint.pt")["run"]["code"] == hparams["code"]
 
@@ -87,7 +87,7 @@ def test_help_version_and_usage_import_no_torch():
     """``--help``, ``--version`` and a bare ``hrl-torch`` answer without importing torch."""
     probe = (
         "import sys, contextlib, io\n"
-        "from hrl_torch.cli import main\n"
+        "from hrl_torch.runs.cli import main\n"
         "for argv in (['--help'], ['--version'], ['train', '--help']):\n"
         "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
         "        try:\n"
@@ -108,7 +108,7 @@ def test_help_version_and_usage_import_no_torch():
 
 
 def test_every_option_has_help_text():
-    from hrl_torch.cli_parser import parser
+    from hrl_torch.runs.cli_parser import parser
 
     def actions(p):
         for action in p._actions:
@@ -131,7 +131,7 @@ def test_no_progress_prints_each_evaluation_as_it_happens(tmp_path, capsys):
 
 
 def test_an_all_nan_evaluation_says_why():
-    from hrl_torch.evaluation import eval_line
+    from hrl_torch.training.evaluation import eval_line
 
     line = eval_line(64, "charts/eval_throughput", [float("nan")] * 2, 1.0)
     assert line.startswith("eval at step 64: greedy throughput nan for every seed: ")
@@ -141,8 +141,8 @@ def test_list_shows_budgets_and_timed_training(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     assert "on the MAXQ task graph [60,000 steps x 256 envs per seed]" in out
-    from hrl_torch import registry
-    from hrl_torch.cli import _training_seconds
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.cli import _training_seconds
 
     seconds = _training_seconds(registry.get("taxi"), "q", steps=2)
     assert 0 < seconds < 3600

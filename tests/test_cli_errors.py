@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from hrl_torch.cli import main
+from hrl_torch.runs.cli import main
 
 BASE = ["train", "taxi", "--algo", "maxq-q", "--no-progress"]
 CASES = {
@@ -66,8 +66,8 @@ def test_the_collector_on_a_multi_agent_domain(tmp_path, capsys):
     assert not (tmp_path / "runs").exists()
     # and from Python: build_trainer says the same
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(seeds=[0], collector=True, progress=False, tensorboard=False)
     with pytest.raises(ValueError, match=r"collector path \(--collector\) is single-agent"):
@@ -100,7 +100,7 @@ def test_debug_shows_the_traceback():
 
 
 def test_a_failed_start_removes_the_run_folder_it_made(tmp_path, monkeypatch):
-    import hrl_torch.experiment as experiment
+    import hrl_torch.runs.experiment as experiment
 
     def broken(*args, **kwargs):
         raise RuntimeError("the env could not be built")
@@ -157,7 +157,7 @@ def test_out_that_is_empty_or_cannot_be_made(tmp_path, capsys):
 
 
 def test_run_options_refuse_what_the_cli_refuses():
-    from hrl_torch.experiment import RunOptions
+    from hrl_torch.runs.experiment import RunOptions
 
     for bad, message in (
         ({"seeds": []}, "at least one seed"),
@@ -179,7 +179,7 @@ def test_an_agents_module_in_the_working_folder_is_not_run(tmp_path):
 
     (tmp_path / "agents.py").write_text("raise SystemExit('the working folder agents.py ran')\n")
     done = subprocess.run(
-        [sys.executable, "-m", "hrl_torch.cli", "list"],
+        [sys.executable, "-m", "hrl_torch.runs.cli", "list"],
         cwd=tmp_path,
         capture_output=True,
         text=True,
@@ -220,8 +220,7 @@ DOMAIN = replace(TAXI, name="faulty", make_env=make_env, backends=("torch",))
 def test_an_env_fault_while_training_is_one_line_and_leaves_a_clear_folder(
     after, tmp_path, capsys, monkeypatch
 ):
-    from hrl_torch import registry
-
+    from hrl_torch.runs import registry
     (tmp_path / f"faulty_{after}.py").write_text(FAULTY.replace("{after}", str(after)))
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(registry, "_DOMAINS", dict(registry._DOMAINS))
@@ -254,8 +253,8 @@ def test_eval_of_a_run_trained_without_evaluation(tmp_path, capsys):
 
 
 def test_evaluate_without_an_eval_env_names_it():
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(seeds=[0], envs_per_learner=2, eval_episodes=0, progress=False)
     trainer = build_trainer(registry.get("taxi"), "q", opts)
@@ -267,9 +266,9 @@ def test_a_learner_built_on_another_graph_is_named():
     from agents.taxi import taxi_hierarchy
     from agents.taxi_fuel import taxi_fuel_hierarchy
     from envs.taxi import TaxiEnv
-    from hrl_torch.exploration import Greedy
     from hrl_torch.learners import MaxQLearner
-    from hrl_torch.trainer import Trainer
+    from hrl_torch.modules.exploration import Greedy
+    from hrl_torch.training.trainer import Trainer
 
     learner = MaxQLearner(taxi_fuel_hierarchy(), 1)
     with pytest.raises(ValueError, match="the learner was built on another task graph"):
@@ -278,7 +277,7 @@ def test_a_learner_built_on_another_graph_is_named():
 
 
 def test_train_config_refuses_negative_intervals():
-    from hrl_torch.trainer import TrainConfig
+    from hrl_torch.training.trainer import TrainConfig
 
     for bad in ({"eval_every": -5}, {"steps": -1}, {"log_every": 0}, {"threshold": float("nan")}):
         with pytest.raises(ValueError, match="TrainConfig"):

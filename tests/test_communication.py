@@ -5,10 +5,10 @@ import torch
 
 from agents.two_taxi import COM_COOPERATION, U1, com_graph
 from envs.two_taxi import NO_PASSENGER, TwoTaxiEnv
-from hrl_torch.exploration import EpsilonGreedy, Greedy
-from hrl_torch.graph import GraphError
+from hrl_torch.hierarchy.graph import GraphError
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import (
+from hrl_torch.modules.exploration import EpsilonGreedy, Greedy
+from hrl_torch.multiagent.cooperative import (
     Communication,
     Cooperation,
     MultiAgentAgent,
@@ -155,8 +155,8 @@ def test_a_bad_communication_level_is_a_clear_error():
 
 def _two_taxi_trainer(seeds):
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(seeds=seeds, envs_per_learner=4, progress=False, tensorboard=False)
     return build_trainer(registry.get("two-taxi"), "com-1", opts)

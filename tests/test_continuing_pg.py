@@ -4,11 +4,11 @@ the learner's own policy (its heads' modes), not with action values it does not 
 import torch
 
 from agents.small_agv import make_env, small_agv_hierarchy, weighted_deliveries
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.exploration import EpsilonGreedy
-from hrl_torch.hybrid import HybridLearner, HybridPolicy
 from hrl_torch.learners import HPGRLLearner, PGConfig, PGPolicy, SMDPQLearner
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.learners.hybrid import HybridLearner, HybridPolicy
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.training.continuing import ThroughputEvaluator
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 
 def run(make_learner, steps: int) -> Trainer:

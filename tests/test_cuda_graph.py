@@ -1,4 +1,4 @@
-"""The training step replayed as one graph (hrl_torch.cuda_graph; issue 27 point 4).
+"""The training step replayed as one graph (hrl_torch.training.cuda_graph; issue 27 point 4).
 
 A CUDA graph replays the captured step's kernels on the captured addresses. ``backend="trace"``
 has the same semantics on any device (each recorded aten op re-run on the tensors the capture
@@ -13,14 +13,14 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.cli_parser import parser as cli_parser
-from hrl_torch.cuda_graph import StepGraph, walk
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.exploration import Exponential, Linear
-from hrl_torch.rng import BatchRNG
-from hrl_torch.sync_count import HostSyncCounter
-from hrl_torch.trainer import Trainer
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.common.sync_count import HostSyncCounter
+from hrl_torch.modules.exploration import Exponential, Linear
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli_parser import parser as cli_parser
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.cuda_graph import StepGraph, walk
+from hrl_torch.training.trainer import Trainer
 
 NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
 NAMED.append(("four-agv", "cooperative"))
@@ -167,7 +167,7 @@ def test_a_step_that_fails_to_compile_runs_eagerly_with_one_warning(monkeypatch)
     def fails(ops):
         raise RuntimeError("no compiler here")
 
-    monkeypatch.setattr("hrl_torch.cuda_graph.compile_trace", fails)
+    monkeypatch.setattr("hrl_torch.training.cuda_graph.compile_trace", fails)
     eager, compiled = _trainer("taxi", "maxq-q"), _trainer("taxi", "maxq-q", compile_step=True)
     with pytest.warns(UserWarning, match="compiling the recorded step failed") as caught:
         for _ in range(30):
@@ -205,7 +205,7 @@ def test_a_replayed_step_of_5120_rows_learns_the_eager_tables():
 
 
 def test_a_cuda_graph_is_captured_only_where_it_pays():
-    from hrl_torch.cuda_graph import _replay_pays
+    from hrl_torch.training.cuda_graph import _replay_pays
 
     assert _replay_pays(_trainer("taxi", "maxq-q"))
     assert not _replay_pays(_trainer("taxi", "maxq-q", envs_per_learner=32768))  # 65,536 rows

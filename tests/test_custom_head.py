@@ -4,11 +4,11 @@ import math
 
 import torch
 
-from hrl_torch.exploration import Greedy, masked_argmax
-from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
-from hrl_torch.policies import sample_categorical
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import Greedy, masked_argmax
+from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput
+from hrl_torch.modules.policies import sample_categorical
+from hrl_torch.training.trainer import TrainConfig, Trainer
 from tests.helpers import TableEnv
 from tests.learners.test_hpgrl import NEXT, REWARD, STARTS, TERMINAL, N, hierarchy
 

@@ -7,9 +7,9 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.cli import main
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 
 def _tables_after(steps, **options):

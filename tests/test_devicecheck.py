@@ -11,13 +11,13 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.cli import main
-from hrl_torch.devicecheck import DeviceRuleError, check_any_device
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.exploration import EpsilonGreedy
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.devicecheck import DeviceRuleError, check_any_device
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.trainer import TrainConfig, Trainer
 from scripts.example_two_rooms import COLS, MOVES, ROWS, GoTo, TwoRoomsEnv, two_rooms_hierarchy
 
 PLUGIN = Path(__file__).resolve().parents[1] / "examples" / "hrl-corridor"

@@ -7,10 +7,10 @@ import agents  # noqa: F401  (registers the domains)
 from agents.taxi import taxi_hierarchy as make_graph
 from agents.taxi import taxi_primitives
 from envs.taxi import TaxiEnv
-from hrl_torch import registry
-from hrl_torch.envcheck import EnvContractError, check_env
-from hrl_torch.experiment import RunOptions, run_experiment
-from hrl_torch.graph import Subtask, TaskGraph
+from hrl_torch.env.envcheck import EnvContractError, check_env
+from hrl_torch.hierarchy.graph import Subtask, TaskGraph
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, run_experiment
 
 
 @pytest.mark.parametrize("name", registry.names())

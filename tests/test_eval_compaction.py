@@ -5,9 +5,9 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.agent import HierarchicalAgent
 
 SUBSET = HierarchicalAgent.subset
 # partly trained (batched steps): 84-91% of the greedy episodes end early, the rest loop
@@ -42,7 +42,7 @@ def test_compacted_evaluation_equals_stepping_every_row(domain, algo, steps, mon
 
 
 def test_an_rng_subset_draws_what_its_rows_drew():
-    from hrl_torch.rng import BatchRNG
+    from hrl_torch.common.rng import BatchRNG
 
     full = BatchRNG([3, 7], 5, "any")
     full.uniform()  # a counter that is not zero

@@ -2,7 +2,7 @@
 
 On the CPU a read costs nothing and the evaluation reads every step (rows still playing,
 immediate checks). Elsewhere each read synchronises, so the evaluation agent's checks are
-deferred (``hrl_torch.deferred.deferred_meanwhile``) and the loop reads every
+deferred (``hrl_torch.training.deferred.deferred_meanwhile``) and the loop reads every
 ``evaluation.READ_EVERY`` steps. ``devicecheck.off_cpu_rules`` gives the CPU the off-CPU
 rules: the same numbers and records, far fewer reads, the same error messages.
 """
@@ -13,12 +13,13 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import devicecheck, evaluation, registry
-from hrl_torch.devicecheck import counting_steps
-from hrl_torch.evaluation import EvalEpisodes
-from hrl_torch.executor import BadStepError
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.sync_count import HostSyncCounter
+from hrl_torch.common.sync_count import HostSyncCounter
+from hrl_torch.execution.executor import BadStepError
+from hrl_torch.runs import devicecheck, registry
+from hrl_torch.runs.devicecheck import counting_steps
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training import evaluation
+from hrl_torch.training.evaluation import EvalEpisodes
 
 CONFIGS = [
     ("taxi", "maxq-q", 200),  # episodic, tabulated (frozen values, compaction)

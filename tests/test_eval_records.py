@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from hrl_torch.cli import main
-from hrl_torch.experiment import evaluate_run
-from hrl_torch.runlog import read_episodes
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.experiment import evaluate_run
+from hrl_torch.training.runlog import read_episodes
 
 ARGS = ["--seeds", "2", "--envs-per-seed", "32", "--eval-every", "6000", "--eval-episodes", "8"]
 

@@ -4,12 +4,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from tensordict import TensorDict
 
-from hrl_torch.agent import with_values
-from hrl_torch.executor import Choice, ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
-from hrl_torch.exploration import EpsilonGreedy
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import (
+    Choice,
+    ExecutorConfig,
+    HierarchicalExecutor,
+    SubtaskTimeoutError,
+)
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, ValuePolicy
-from hrl_torch.rng import BatchRNG
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.training.agent import with_values
 from tests.helpers import random_hierarchy, random_table_env
 
 
@@ -176,7 +181,7 @@ def test_no_available_child_is_a_clear_error():
     ex = HierarchicalExecutor(graph, 1, 1)
     ctx = graph.context(env.reset())
     learner.evaluate(ctx)
-    from hrl_torch.graph import GraphError
+    from hrl_torch.hierarchy.graph import GraphError
 
     with pytest.raises(GraphError, match="'Dead' has no available child"):
         ex.act(ctx, policy, 0)
@@ -229,7 +234,7 @@ def test_value_policy_choosing_for_all_instances_equals_choosing_level_by_level(
     # the uniforms of level d: the same choices as asking the learner level by level
     from agents.taxi import taxi_hierarchy
     from envs.taxi import TaxiEnv
-    from hrl_torch.agent import HierarchicalAgent
+    from hrl_torch.training.agent import HierarchicalAgent
 
     def run(all_at_once):
         graph, seeds = taxi_hierarchy(), [3, 4]
@@ -284,9 +289,9 @@ def test_choosing_for_the_choosing_rows_only_gives_the_same_run(domain, algo, mo
     # (policy.select_rows, their random numbers alone drawn): the same choices, tables and
     # stacks as choosing for every row
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
     from hrl_torch.learners.base import ValuePolicy
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     monkeypatch.setattr(ValuePolicy, "ALL_AT_ONCE_LIMIT", 0)  # (value learners: level by level)
 

@@ -2,7 +2,7 @@
 
 import torch
 
-from hrl_torch.executor import LEVEL, PRIMITIVE, HierarchicalExecutor
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE, HierarchicalExecutor
 from tests.learners.test_q_lambda_and_hh_exact import chain
 
 
@@ -42,10 +42,10 @@ def test_a_greedy_child_of_an_exploratory_choice_is_not_greedy():
 def test_starting_again_after_an_episode_end_puts_every_row_at_the_root():
     # a row whose episode just ended waits for its reset (done); emptying the stacks for a new
     # start must clear that mark, or the row would never act again
-    from hrl_torch.agent import HierarchicalAgent
-    from hrl_torch.exploration import Greedy
+    from hrl_torch.common.rng import BatchRNG
     from hrl_torch.learners import SMDPQLearner
-    from hrl_torch.rng import BatchRNG
+    from hrl_torch.modules.exploration import Greedy
+    from hrl_torch.training.agent import HierarchicalAgent
 
     graph, env = chain()
     agent = HierarchicalAgent(graph, SMDPQLearner(graph, 1), Greedy(), BatchRNG([0], 1, "x"), 1)

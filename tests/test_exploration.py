@@ -1,6 +1,7 @@
 import torch
 
-from hrl_torch.exploration import (
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.modules.exploration import (
     Boltzmann,
     Constant,
     EpsilonGreedy,
@@ -11,7 +12,6 @@ from hrl_torch.exploration import (
     uniform_choice,
     uniforms_needed,
 )
-from hrl_torch.rng import BatchRNG
 
 
 def test_schedules():

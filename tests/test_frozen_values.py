@@ -1,14 +1,14 @@
 """A greedy evaluation on a tabulated graph evaluates the frozen tables once per state and looks
-the values up (``hrl_torch.agent.FrozenValues``, issue "Hot path"): the same records as
+the values up (``hrl_torch.training.agent.FrozenValues``, issue "Hot path"): the same records as
 evaluating the learner at every step."""
 
 import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.agent import HierarchicalAgent
 
 FREEZE = HierarchicalAgent.freeze_values
 # partly trained (batched steps), two seeds with different tables

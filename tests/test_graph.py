@@ -3,7 +3,7 @@ import torch
 from tensordict import TensorDict
 
 from agents.taxi import taxi_hierarchy
-from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
 
 
 def obs(b=3, **fields):

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.graph import Primitive, TaskGraph
+from hrl_torch.hierarchy.graph import Primitive, TaskGraph
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 PLUGIN = Path(__file__).resolve().parents[1] / "examples" / "hrl-corridor"
 

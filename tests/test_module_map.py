@@ -77,7 +77,7 @@ def test_no_module_imports_another_modules_private_name():
 
 
 def test_the_training_loop_imports_nothing_multi_agent():
-    graph, seen, todo = _graph(), set(), ["hrl_torch.trainer"]
+    graph, seen, todo = _graph(), set(), ["hrl_torch.training.trainer"]
     while todo:
         m = todo.pop()
         if m not in seen:

@@ -4,12 +4,17 @@ a hand-made two-agent case, cooperative abstractions, per-agent tables, bad inpu
 import pytest
 import torch
 
-from hrl_torch.executor import Choice
-from hrl_torch.exploration import EpsilonGreedy
-from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.execution.executor import Choice
+from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.multiagent import Cooperation, MultiAgentAgent, agent_rng, cooperative_graph
-from hrl_torch.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.multiagent.cooperative import (
+    Cooperation,
+    MultiAgentAgent,
+    agent_rng,
+    cooperative_graph,
+)
 
 WORK, WAIT = 0, 1
 
@@ -174,8 +179,8 @@ def test_an_action_outside_an_agents_action_space_is_a_clear_error():
 
 def _trash_trainer(seeds, algo="cooperative"):
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(seeds=seeds, envs_per_learner=4, progress=False, tensorboard=False)
     return build_trainer(registry.get("trash"), algo, opts)

@@ -7,12 +7,12 @@ the target's continuation is the epsilon-greedy policy's expected value at ``s'`
 import pytest
 import torch
 
-from hrl_torch.executor import LEVEL
-from hrl_torch.exploration import Constant, EpsilonGreedy
+from hrl_torch.common.ops import discount
+from hrl_torch.execution.executor import LEVEL
 from hrl_torch.learners import TabularLearner
 from hrl_torch.learners.base import finished
-from hrl_torch.ops import discount
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import Constant, EpsilonGreedy
+from hrl_torch.training.trainer import TrainConfig, Trainer
 from tests.test_example_two_rooms import load_example
 
 

@@ -11,14 +11,15 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 # (domain, algorithm, envs per learner): budget; measured counts in the comments. At one env
 # per learner no two rows share a table, so the tables take the plain update (fewer ops);
 # the x8 cases guard the grouped update of rows that may hit one entry.
 BUDGETS = {
-    # (+10: the deferred checks of a step with no host read, hrl_torch.deferred: 195 before)
+    # (+10: the deferred checks of a step with no host read, hrl_torch.training.deferred: 195
+    # before)
     ("taxi", "maxq-q", 1): 215,  # 205 (509 at 1ce5127, 862 before the core rewrite)
     ("taxi", "maxq-q", 8): 229,  # 218
     ("small-agv", "har", 1): 360,  # 344 (647 at 1ce5127)
@@ -61,14 +62,14 @@ def test_ops_per_training_step_stay_within_budget(case):
     assert min(counts) > 0.5 * BUDGETS[case], "the budget is stale: lower it to the new count"
 
 
-# a greedy evaluation step (no transitions: no sums kept, no transition masks; hrl_torch.executor
-# ``sums``; while every row loops, no root decision to record and no episode end to account):
-# taxi MAXQ-Q, 4 episodes that all run to the time limit
+# a greedy evaluation step (no transitions: no sums kept, no transition masks;
+# hrl_torch.execution.executor ``sums``; while every row loops, no root decision to record and no
+# episode end to account): taxi MAXQ-Q, 4 episodes that all run to the time limit
 EVAL_BUDGET = 110  # 104 (145 before the evaluation agents kept no sums)
 
 
 def test_ops_per_greedy_evaluation_step_stay_within_budget(monkeypatch):
-    from hrl_torch.evaluation import EvalEpisodes
+    from hrl_torch.training.evaluation import EvalEpisodes
 
     torch.set_num_threads(1)
     opts = RunOptions(

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from hrl_torch import ops
+from hrl_torch.common import ops
 
 
 @pytest.mark.parametrize("rows", [3, 3000])  # below and above ops.COLUMNS_TRANSPOSED

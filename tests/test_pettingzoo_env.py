@@ -1,4 +1,4 @@
-"""The PettingZoo adapters of ``hrl_torch.pettingzoo_env`` on the toys of ``helpers_multiagent``."""
+"""The PettingZoo adapters of ``hrl_torch.env.pettingzoo_env`` on the toys of helpers_multiagent."""
 
 import random
 import warnings
@@ -8,7 +8,7 @@ import pytest
 import torch
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test
 
-from hrl_torch.pettingzoo_env import MultiAgentAECEnv, MultiAgentParallelEnv, make_aec
+from hrl_torch.env.pettingzoo_env import MultiAgentAECEnv, MultiAgentParallelEnv, make_aec
 from tests.helpers_multiagent import AsyncToyEnv, SyncToyEnv
 
 TOYS = [AsyncToyEnv, SyncToyEnv]

@@ -4,7 +4,7 @@ import csv
 
 import numpy as np
 
-from hrl_torch.plots import axis_label, iqm, iqm_interval, plot_curves
+from hrl_torch.runs.plots import axis_label, iqm, iqm_interval, plot_curves
 
 
 def test_iqm_is_the_mean_of_the_middle_half():

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 import agents  # noqa: F401  (the built-in domains, registered before the tests copy the registry)
-from hrl_torch import registry
-from hrl_torch.cli import main
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGIN = ROOT / "examples" / "hrl-corridor"
@@ -21,7 +21,7 @@ PLUGIN = ROOT / "examples" / "hrl-corridor"
 def hrl_torch(*args, pythonpath: str, cwd) -> subprocess.CompletedProcess:
     """The command in its own process, so the installed plugin's entry points are fresh."""
     env = {**os.environ, "PYTHONPATH": pythonpath}
-    cmd = [sys.executable, "-m", "hrl_torch.cli", "--project", str(ROOT), *args]
+    cmd = [sys.executable, "-m", "hrl_torch.runs.cli", "--project", str(ROOT), *args]
     return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=cwd, timeout=300)
 
 

@@ -4,8 +4,9 @@ import math
 
 import torch
 
-from hrl_torch.heads import PolicyInput
-from hrl_torch.policies import (
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.modules.heads import PolicyInput
+from hrl_torch.modules.policies import (
     SoftmaxPolicyHead,
     TileGaussianPolicyHead,
     gaussian_log_prob,
@@ -13,9 +14,8 @@ from hrl_torch.policies import (
     squash,
     unsquash,
 )
-from hrl_torch.rng import BatchRNG
-from hrl_torch.tables import TableBank
-from hrl_torch.tiles import TileCoder
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.modules.tiles import TileCoder
 
 
 def bind(head, n_learners, seed=0):

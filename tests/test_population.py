@@ -5,12 +5,12 @@ import torch
 
 from agents.taxi import flat_graph, taxi_hierarchy
 from envs.taxi import TaxiEnv
-from hrl_torch.checkpoint import CheckpointError
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.common.checkpoint import CheckpointError
+from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.tables import TableBank
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 SEEDS = [3, 11, 42]
 

@@ -15,13 +15,9 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from agents.taxi import flat_graph, taxi_hierarchy
 from envs.taxi import TaxiEnv
-from hrl_torch import registry
-from hrl_torch.cli_parser import add_sweep_parser
-from hrl_torch.config import Make, same
-from hrl_torch.domain import with_overrides
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.experiment import RunOptions, build_trainer, continue_options
-from hrl_torch.exploration import Boltzmann, EpsilonGreedy, Linear
+from hrl_torch.common.config import Make, same
+from hrl_torch.common.sync_count import count_train_step
+from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import (
     HPGRLLearner,
     MaxQLearner,
@@ -30,15 +26,19 @@ from hrl_torch.learners import (
     SMDPQLearner,
 )
 from hrl_torch.learners.pg import PGConfig
-from hrl_torch.population_grid import (
+from hrl_torch.modules.exploration import Boltzmann, EpsilonGreedy, Linear
+from hrl_torch.modules.tables import TableBank, TableSet
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli_parser import add_sweep_parser
+from hrl_torch.runs.domain import with_overrides
+from hrl_torch.runs.experiment import RunOptions, build_trainer, continue_options
+from hrl_torch.runs.population_grid import (
     population_values,
     run_population_command,
     train_grid,
     with_values,
 )
-from hrl_torch.sync_count import count_train_step
-from hrl_torch.tables import TableBank, TableSet
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.training.trainer import TrainConfig, Trainer
 from tests.test_any_device import _tensors
 
 SEEDS = [0, 1, 2, 3, 4]
@@ -256,7 +256,7 @@ def test_settings_holding_tensors_compare_resume_and_write_as_numbers(tmp_path):
     with pytest.raises(ValueError, match="settings .* differs from the checkpoint's run"):
         continue_options("c.pt", run, settings={"alpha": alpha * 2})
     # a run's hparams.json lists a per-learner value as its numbers
-    from hrl_torch.runlog import RunLogger
+    from hrl_torch.training.runlog import RunLogger
 
     RunLogger(tmp_path, [0, 1, 2, 3], {"options.settings": {"alpha": alpha}}, tensorboard=False)
     written = json.loads((tmp_path / "hparams.json").read_text())

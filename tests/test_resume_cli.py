@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from hrl_torch.checkpoint import load_checkpoint
-from hrl_torch.cli import main
-from hrl_torch.experiment import RunOptions, run_experiment
-from hrl_torch.trainer import Trainer
+from hrl_torch.common.checkpoint import load_checkpoint
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.experiment import RunOptions, run_experiment
+from hrl_torch.training.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--seeds", "2", "--envs-per-seed", "4", "--eval-every", "200", "--eval-episodes", "3"]
@@ -91,7 +91,7 @@ def test_resume_from_the_checkpoint_alone_keeps_the_original_settings(tmp_path, 
         out=str(out),
         progress=False,
     )
-    run_experiment(__import__("hrl_torch.registry").registry.get("taxi"), "maxq-q", opts)
+    run_experiment(__import__("hrl_torch.runs.registry").registry.get("taxi"), "maxq-q", opts)
     assert_same_tables(tables(run_dir), tables(the_run(out)))
     assert logged(run_dir) == logged(the_run(out))
 
@@ -225,7 +225,7 @@ def test_out_and_missing_arguments(straight, tmp_path, capsys):
 
 def test_a_real_ctrl_c_on_the_command_line(tmp_path):
     """The installed command in its own process: SIGINT once training logs, exit 130."""
-    cmd = [sys.executable, "-m", "hrl_torch.cli", "--project", str(ROOT), "train", "taxi"]
+    cmd = [sys.executable, "-m", "hrl_torch.runs.cli", "--project", str(ROOT), "train", "taxi"]
     cmd += ["--algo", "maxq-q", *SMALL, "--steps", "100000000", "--out", str(tmp_path)]
     cmd += ["--no-progress", "--no-tensorboard"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -251,8 +251,7 @@ def _text(path: Path) -> str:
 
 
 def test_the_library_resumes_from_the_checkpoint_alone(tmp_path):
-    from hrl_torch import registry
-
+    from hrl_torch.runs import registry
     assert train(tmp_path, "--steps", "400") == 0
     run_dir = the_run(tmp_path)
     opts = RunOptions(resume=str(run_dir / "checkpoint.pt"), steps=800, progress=False)
@@ -265,7 +264,7 @@ def test_the_library_resumes_from_the_checkpoint_alone(tmp_path):
 
 def test_a_row_cut_short_by_a_crash_is_dropped_on_resume_at_any_byte(tmp_path):
     """A crash at any byte of the last CSV write: the resumed log holds whole rows only."""
-    from hrl_torch.runlog import RunLogger, read_curves
+    from hrl_torch.training.runlog import RunLogger, read_curves
 
     whole = "step,seed,metric,value\n" + "".join(
         f"{s},0,charts/eval_return,{s / 10:.6g}\n" for s in (4, 8, 12, 16)
@@ -282,7 +281,7 @@ def test_a_row_cut_short_by_a_crash_is_dropped_on_resume_at_any_byte(tmp_path):
 
 
 def test_a_second_writer_of_a_run_folder_is_refused_and_changes_nothing(tmp_path, capsys):
-    from hrl_torch.runlock import RunLock
+    from hrl_torch.runs.runlock import RunLock
 
     assert train(tmp_path, "--steps", "400") == 0
     run_dir = the_run(tmp_path)
@@ -305,7 +304,7 @@ def test_two_concurrent_resumes_one_is_refused(tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "hrl_torch.cli",
+        "hrl_torch.runs.cli",
         "train",
         "--resume",
         str(run_dir / "checkpoint.pt"),
@@ -377,7 +376,7 @@ def test_a_checkpoint_whose_recorded_seeds_were_edited_is_refused(tmp_path, caps
 def test_a_full_disk_at_a_checkpoint_is_one_line_and_keeps_the_previous_one(
     tmp_path, capsys, monkeypatch
 ):
-    import hrl_torch.checkpoint as checkpoint_module
+    import hrl_torch.common.checkpoint as checkpoint_module
 
     save, calls = checkpoint_module.torch.save, []
 

@@ -1,7 +1,7 @@
 """Exact resume, parameterized over every registered domain and every algorithm of each.
 
 For each ``(domain, algo)`` the trainer is built the way the CLI builds it
-(``hrl_torch.experiment.build_trainer`` with ``RunOptions``) with a budget of ``TOTAL`` env
+(``hrl_torch.runs.experiment.build_trainer`` with ``RunOptions``) with a budget of ``TOTAL`` env
 steps per learner. One run trains ``HALF`` steps, is checkpointed mid-episode and mid-subtask
 (asserted: Task-Stacks hold running subtasks with accumulated reward), and a *fresh* trainer
 loads the checkpoint and trains to ``TOTAL``. Against one uninterrupted ``TOTAL``-step run,
@@ -15,7 +15,7 @@ bit for bit:
   the ``TrainResult``;
 
 and the fresh trainer right after loading equals the trainer that saved. The cases are read from
-``hrl_torch.registry`` at collection time, so a newly registered algorithm is covered.
+``hrl_torch.runs.registry`` at collection time, so a newly registered algorithm is covered.
 
 A checkpoint that loses the executor's accumulated ``reward`` of running subtasks makes the
 learners that read it diverge (RAR's per-subtask gains and tables on small-agv, HPGRL's
@@ -34,9 +34,9 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.runlog import RunLogger
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.runlog import RunLogger
 
 SEEDS = (0, 1)
 E = 4  # envs per learner: the clock advances by E per batched step

@@ -1,6 +1,6 @@
 import torch
 
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
 
 
 def test_a_learner_sees_the_same_stream_alone_or_in_a_population():

@@ -9,15 +9,16 @@ import pytest
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import config, registry
-from hrl_torch.checkpoint import load_checkpoint
-from hrl_torch.cli import main
-from hrl_torch.config import Budget, Make, parse_settings
-from hrl_torch.domain import setting_names, with_overrides
-from hrl_torch.experiment import continue_options
-from hrl_torch.exploration import EpsilonGreedy, Linear
+from hrl_torch.common import config
+from hrl_torch.common.checkpoint import load_checkpoint
+from hrl_torch.common.config import Budget, Make, parse_settings
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.sweep import run_sweep
+from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.domain import setting_names, with_overrides
+from hrl_torch.runs.experiment import continue_options
+from hrl_torch.runs.sweep import run_sweep
 
 
 def spec_of(domain="taxi", algo="maxq-q"):

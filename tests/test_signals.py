@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-import hrl_torch.checkpoint as checkpoint_module
-import hrl_torch.experiment as experiment
-from hrl_torch.checkpoint import load_checkpoint
-from hrl_torch.cli import main
-from hrl_torch.trainer import Trainer
+import hrl_torch.common.checkpoint as checkpoint_module
+import hrl_torch.runs.experiment as experiment
+from hrl_torch.common.checkpoint import load_checkpoint
+from hrl_torch.runs.cli import main
+from hrl_torch.training.trainer import Trainer
 
 SMALL = ["--seeds", "2", "--envs-per-seed", "4", "--eval-every", "200", "--eval-episodes", "3"]
 CODE = {"SIGINT": 130, "SIGTERM": 143}

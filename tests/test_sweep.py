@@ -7,10 +7,10 @@ import sys
 import pytest
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch import registry
-from hrl_torch.cli_parser import add_sweep_parser
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.sweep import (
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli_parser import add_sweep_parser
+from hrl_torch.runs.sweep import (
     INSTALL_HINT,
     configurations,
     default_metric,
@@ -234,7 +234,7 @@ def test_local_ray_sweep_ranks_its_trials_and_resumes(tmp_path, capsys):
 
 def test_a_trial_reruns_an_unfinished_run_and_reuses_a_finished_one(tmp_path, monkeypatch):
     tune = pytest.importorskip("ray.tune")
-    from hrl_torch.sweep import _trial
+    from hrl_torch.runs.sweep import _trial
 
     reports = []
     monkeypatch.setattr(tune, "report", reports.append)

@@ -1,6 +1,6 @@
 import torch
 
-from hrl_torch.tables import TableBank
+from hrl_torch.modules.tables import TableBank
 
 
 def bank(init=0.0):

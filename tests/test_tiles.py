@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from hrl_torch.tiles import TileCoder, asymmetric_offsets, tile_indices
+from hrl_torch.modules.tiles import TileCoder, asymmetric_offsets, tile_indices
 
 
 def test_hand_computed_indices_two_tilings():

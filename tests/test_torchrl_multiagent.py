@@ -5,7 +5,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs.utils import check_env_specs
 
-from hrl_torch.torchrl_multiagent import MultiAgentTorchRLEnv
+from hrl_torch.env.torchrl_multiagent import MultiAgentTorchRLEnv
 from tests.helpers_multiagent import AsyncToyEnv, SyncToyEnv
 
 TOYS = [AsyncToyEnv, SyncToyEnv]

@@ -1,12 +1,10 @@
-"""The transition schema (``hrl_torch.transitions``) is what the executor emits, key by key."""
+"""The transition schema (``execution.transitions``) is what the executor emits, key by key."""
 
 import pytest
 import torch
 
 import agents  # noqa: F401  (registers the built-in domains)
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.transitions import (
+from hrl_torch.execution.transitions import (
     LEVEL,
     LEVEL_KEYS,
     OPTIONAL,
@@ -15,6 +13,8 @@ from hrl_torch.transitions import (
     TransitionSchemaError,
     check_transitions,
 )
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 # every condition of the schema: no optional keys (maxq), some (har), all with features and
 # scores (hybrid, hpgrl: continuous actions), visited states (key-door), multi-agent rows

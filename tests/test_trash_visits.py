@@ -13,8 +13,8 @@ import torch
 def _exact(algo: str, steps: int | None) -> list[float]:
     import agents  # noqa: F401
     from envs.trash import REFILL_PROB
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
     from scripts.trash_exact import exact_gains
 
     opts = RunOptions(seeds=list(range(5)), steps=steps, progress=False, tensorboard=False)

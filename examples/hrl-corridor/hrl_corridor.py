@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.config import Make
-from hrl_torch.env import BatchedEnv
-from hrl_torch.experiment import AlgoSpec, DomainSpec
-from hrl_torch.exploration import linear_epsilon
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.config import Make
+from hrl_torch.env.batched import BatchedEnv
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.trainer import TrainConfig
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.training.trainer import TrainConfig
 
 LENGTH = 8
 LEFT, RIGHT = 0, 1

@@ -55,7 +55,7 @@ import torch
 
 from hrl_torch.analysis.chains import F64, FiniteModel
 from hrl_torch.analysis.hierarchy import Unrolled
-from hrl_torch.graph import GraphError, TaskGraph
+from hrl_torch.hierarchy.graph import GraphError, TaskGraph
 
 MAX_NODE_IRRELEVANCE = "max-node irrelevance"
 LEAF_IRRELEVANCE = "leaf irrelevance"

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.exploration import masked_argmax
-from hrl_torch.stack import TaskStack
+from hrl_torch.execution.stack import TaskStack
+from hrl_torch.modules.exploration import masked_argmax
 
 
 class FirstGreedy:

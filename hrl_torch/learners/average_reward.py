@@ -36,12 +36,12 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule
-from hrl_torch.graph import StepContext, TaskGraph
+from hrl_torch.common.ops import take_flat
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.three_part import ThreePartLearner
-from hrl_torch.ops import take_flat
+from hrl_torch.modules.exploration import Schedule
 
 
 class GainEstimate(nn.Module):

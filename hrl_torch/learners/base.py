@@ -1,13 +1,13 @@
 """What every learner provides, and the policy that turns its values into choices.
 
-A learner is an update rule over batches of SMDP transitions (see ``hrl_torch.executor``):
+A learner is an update rule over batches of SMDP transitions (see ``hrl_torch.execution.executor``):
 
 - ``evaluate(ctx)`` computes, once per step, whatever per-node values its choices and targets
   need at the current observations and stores them in ``ctx.values``, under the keys its
   ``value_keys`` declare (all of them, no other: ``evaluate_checked`` holds it to them);
 - ``action_values(inst, ctx)`` returns the values ``[B, A]`` of the children of the instances
   ``inst [B]`` that exploration chooses from;
-- ``update(batch, step)`` applies one batch of transitions (``hrl_torch.agent``): their
+- ``update(batch, step)`` applies one batch of transitions (``hrl_torch.training.agent``): their
   ``batch["values"]`` holds what ``evaluate`` computed at ``s'``, ``batch["obs"]`` is ``s'``.
 
 Learners never step envs and never touch the Task-Stack.
@@ -18,10 +18,15 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from hrl_torch.devices import MovesTensorAttrs, static_shapes
-from hrl_torch.eval_plan import EvalPlan
-from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
-from hrl_torch.exploration import (
+from hrl_torch.common.devices import MovesTensorAttrs, static_shapes
+from hrl_torch.common.ops import add_at, at_rows, lookup, take_flat
+from hrl_torch.common.per_learner import check_size
+from hrl_torch.common.rng import BatchRNG, LevelDraws
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE, Choice
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.learners.validate import check_fraction, check_step_size
+from hrl_torch.modules.eval_plan import EvalPlan
+from hrl_torch.modules.exploration import (
     Exploration,
     Schedule,
     as_schedule,
@@ -29,13 +34,8 @@ from hrl_torch.exploration import (
     on_device,
     uniforms_needed,
 )
-from hrl_torch.graph import StepContext, TaskGraph
-from hrl_torch.heads import attach_table_heads
-from hrl_torch.ops import add_at, at_rows, lookup, take_flat
-from hrl_torch.per_learner import check_size
-from hrl_torch.rng import BatchRNG, LevelDraws
-from hrl_torch.tables import TableBank, TableLayout, TableSet
-from hrl_torch.validate import check_fraction, check_step_size
+from hrl_torch.modules.heads import attach_table_heads
+from hrl_torch.modules.tables import TableBank, TableLayout, TableSet
 
 
 def finished(level) -> torch.Tensor:
@@ -51,8 +51,8 @@ class Learner(MovesTensorAttrs, nn.Module):
     """Base class: a population of ``P`` independent learners over one task graph.
 
     ``uses``: the optional transition keys ``update`` reads
-    (``hrl_torch.executor.HierarchicalExecutor.OPTIONAL``); ``None`` (the default) asks for
-    all of them, a learner that declares fewer spares the executor their ops.
+    (``hrl_torch.execution.executor.HierarchicalExecutor.OPTIONAL``); ``None`` (the default) asks
+    for all of them, a learner that declares fewer spares the executor their ops.
     """
 
     gamma: float = 1.0
@@ -353,7 +353,7 @@ class ValuePolicy:
     Attributes:
         choice_cost: optional ``[n_nodes, max_children]`` cost of choosing a child, subtracted
             from its action value before the choice (not learned; e.g. the communication cost
-            of COM-Cooperative HRL, ``hrl_torch.multiagent.Communication``).
+            of COM-Cooperative HRL, ``hrl_torch.multiagent.cooperative.Communication``).
     """
 
     #: on the CPU, above this many values per step (rows x choosers x children), choosing

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import PRIMITIVE
-from hrl_torch.exploration import Schedule
-from hrl_torch.graph import TaskGraph
+from hrl_torch.common.ops import discount
+from hrl_torch.execution.executor import PRIMITIVE
+from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.learners.three_part import ThreePartLearner
-from hrl_torch.ops import discount
+from hrl_torch.modules.exploration import Schedule
 
 
 class HDRLearner(ThreePartLearner):
@@ -48,7 +48,7 @@ class HDRLearner(ThreePartLearner):
         super().__init__(graph, n_learners, alpha, gamma, all_states, continuous, init, ce_init)
 
     def discount(self, t: torch.Tensor) -> torch.Tensor:
-        """``gamma ** t`` (``hrl_torch.ops.discount``: float64 inside, shape-independent)."""
+        """``gamma ** t`` (``hrl_torch.common.ops.discount``: float64 inside, shape-independent)."""
         return discount(self.gamma, t)
 
     def primitive_target(self, batch) -> torch.Tensor:

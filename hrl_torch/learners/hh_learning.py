@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.common.ops import columns
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.average_reward import GainEstimate
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.ops import columns
-from hrl_torch.tables import TableBank
+from hrl_torch.modules.tables import TableBank
 
 
 class HHLearner(TabularLearner):

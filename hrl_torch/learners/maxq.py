@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import LEVEL, PRIMITIVE
-from hrl_torch.exploration import Schedule
-from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.common.ops import argmax_last, discount, entries, take_flat
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.ops import argmax_last, discount, entries, take_flat
+from hrl_torch.modules.exploration import Schedule
 
 
 class MaxQLearner(TabularLearner):

@@ -1,10 +1,10 @@
 """Policy-gradient learners (Chapter 5): HPGRL (Algorithm 3), flat PGRL and actor-critic.
 
 Every policy-gradient (PG) node ``i`` has a parameterised policy ``mu_i(a|s; theta_i)``, its
-*policy head* (``hrl_torch.heads.PolicyHead``): by default a softmax with one parameter per
+*policy head* (``hrl_torch.modules.heads.PolicyHead``): by default a softmax with one parameter per
 (abstract state, child) when its children are discrete, or a Gaussian over CMAC tiles of its
-continuous features when its only child is a continuous primitive (``hrl_torch.policies``); any
-``PolicyHead`` subclass can be given instead. Nodes may share parameters by naming the same
+continuous features when its only child is a continuous primitive (``hrl_torch.modules.policies``);
+any ``PolicyHead`` subclass can be given instead. Nodes may share parameters by naming the same
 *group* (the ship's four diagonal directions share one low-level policy). Updates (Algorithm 3,
 lines 11-16, with Equation 5.3), after child ``a`` of ``i`` ran from ``s`` to ``s'`` with
 external reward ``R`` (summed over the child) and internal reward ``r~_i`` of ``i``::
@@ -44,18 +44,18 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from hrl_torch.executor import LEVEL, PRIMITIVE, Choice
-from hrl_torch.exploration import Schedule, as_schedule
-from hrl_torch.graph import GraphError, StepContext, TaskGraph
-from hrl_torch.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
+from hrl_torch.common.ops import lookup
+from hrl_torch.common.rng import LevelDraws
+from hrl_torch.execution.executor import LEVEL, PRIMITIVE, Choice
+from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg_traces import apply_traces
-from hrl_torch.ops import lookup
-from hrl_torch.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
-from hrl_torch.rng import LevelDraws
-from hrl_torch.tables import TableBank
-from hrl_torch.tiles import TileCoder
-from hrl_torch.validate import check_fraction, check_positive, check_step_size
+from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
+from hrl_torch.modules.exploration import Schedule, as_schedule
+from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
+from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.modules.tiles import TileCoder
 
 FeatureReward = Callable[[torch.Tensor], torch.Tensor]
 
@@ -384,7 +384,9 @@ class HPGRLLearner(Learner):
         their own randomness); ``evaluate=True`` acts on their modes and records nothing.
         """
         if set(self.graph.subtasks()) - self._pg_nodes:
-            raise GraphError("not every subtask is a PG node: use hrl_torch.hybrid.HybridLearner")
+            raise GraphError(
+                "not every subtask is a PG node: use hrl_torch.learners.hybrid.HybridLearner"
+            )
         return PGPolicy(self, rng, greedy=evaluate)
 
     # ------------------------------------------------------------------ learning

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.devices import static_shapes
-from hrl_torch.ops import lookup
+from hrl_torch.common.devices import static_shapes
+from hrl_torch.common.ops import lookup
 
 #: ring entries (pairs x (trace length + 1)) above which an eager step off the CPU compacts
 #: like the CPU's: the static pass reads every entry of every ring at every step, O(trace

@@ -22,8 +22,8 @@ a trace-weighted mean, ``Q += alpha sum_r delta_r e_r / max(1, sum_r e_r)``: exa
 above when one row touches the entry, never an ``n * alpha`` step when ``n`` rows do.
 
 Only the transitions of the value nodes are learned from (``nodes``): in a hybrid hierarchy the
-policy-gradient nodes below belong to another learner (``hrl_torch.hybrid``). As in the other
-value learners, a child aborted by an ancestor teaches nothing unless its parent terminated.
+policy-gradient nodes below belong to another learner (``hrl_torch.learners.hybrid``). As in the
+other value learners, a child aborted by an ancestor teaches nothing unless its parent terminated.
 """
 
 from __future__ import annotations
@@ -32,16 +32,16 @@ from collections.abc import Sequence
 
 import torch
 
-from hrl_torch.eval_plan import EvalPlan
-from hrl_torch.executor import LEVEL
-from hrl_torch.exploration import Schedule
-from hrl_torch.graph import StepContext, TaskGraph
+from hrl_torch.common.ops import lookup
+from hrl_torch.common.per_learner import at_entries
+from hrl_torch.execution.executor import LEVEL
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
-from hrl_torch.ops import lookup
-from hrl_torch.per_learner import at_entries
-from hrl_torch.tables import TableBank
-from hrl_torch.validate import check_fraction
+from hrl_torch.learners.validate import check_fraction
+from hrl_torch.modules.eval_plan import EvalPlan
+from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.tables import TableBank
 
 
 class QLambdaLearner(TabularLearner):

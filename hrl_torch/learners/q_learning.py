@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import LEVEL
-from hrl_torch.graph import StepContext
+from hrl_torch.common.ops import discount, lookup
+from hrl_torch.execution.executor import LEVEL
+from hrl_torch.hierarchy.graph import StepContext
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.ops import discount, lookup
 
 
 class SMDPQLearner(TabularLearner):

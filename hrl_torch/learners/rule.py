@@ -15,10 +15,10 @@ from collections.abc import Callable
 
 import torch
 
-from hrl_torch.checkpoint import Stateful
-from hrl_torch.devices import attributes_of, move_attributes
-from hrl_torch.executor import Choice
-from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.common.checkpoint import Stateful
+from hrl_torch.common.devices import attributes_of, move_attributes
+from hrl_torch.execution.executor import Choice
+from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import Learner
 
 Rule = Callable[[object], torch.Tensor]

@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.executor import LEVEL
-from hrl_torch.exploration import Schedule
-from hrl_torch.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.common.ops import group_of_rows
+from hrl_torch.execution.executor import LEVEL
+from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.ops import group_of_rows
+from hrl_torch.modules.exploration import Schedule
 
 
 class RVIQLearner(TabularLearner):

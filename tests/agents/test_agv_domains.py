@@ -7,10 +7,10 @@ import torch
 
 import agents  # noqa: F401  (registers the domains)
 from envs.agv import CAPACITY, AGVEnv
-from hrl_torch import registry
-from hrl_torch.cli import main
-from hrl_torch.experiment import RunOptions, build_trainer
-from hrl_torch.tables import TableBank
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.runs import registry
+from hrl_torch.runs.cli import main
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 
 def test_chapter_4_domains_are_registered():

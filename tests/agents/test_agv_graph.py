@@ -21,9 +21,9 @@ from envs.agv import (
     decode,
     shortest_paths,
 )
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.exploration import uniform_choice
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import HierarchicalExecutor
+from hrl_torch.modules.exploration import uniform_choice
 
 
 def random_obs(n, seed=0, delivery=True):

@@ -34,8 +34,8 @@ from envs.four_agv import (
     n_flat_states,
     shortest_paths,
 )
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import HierarchicalExecutor
 
 
 def random_obs(n, seed=0, capacity=3):

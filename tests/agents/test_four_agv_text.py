@@ -26,8 +26,8 @@ from envs.four_agv import (
     decode,
     n_flat_states,
 )
-from hrl_torch import registry
-from hrl_torch.multiagent import cooperative_graph
+from hrl_torch.multiagent.cooperative import cooperative_graph
+from hrl_torch.runs import registry
 
 FAR = 1e6
 

@@ -3,8 +3,8 @@
 
 import pytest
 
-from hrl_torch import registry
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 
 @pytest.mark.slow

@@ -31,12 +31,12 @@ from agents.ship import (
     to_local,
 )
 from envs.ship import ShipSteeringEnv, wrap_degrees
-from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.cli import main as cli_main
-from hrl_torch.collector import collect
-from hrl_torch.exploration import EpsilonGreedy
-from hrl_torch.rng import BatchRNG
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.runs.cli import main as cli_main
+from hrl_torch.training.agent import HierarchicalAgent
+from hrl_torch.training.collector import collect
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 
 def _states(n, seed=0):

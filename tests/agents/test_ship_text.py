@@ -16,10 +16,10 @@ from agents.ship_text import (
     make_hybrid_text,
     make_subtask_learner,
 )
-from hrl_torch.agent import HierarchicalAgent
-from hrl_torch.exploration import Greedy
-from hrl_torch.rng import BatchRNG
-from hrl_torch.sync_count import HostSyncCounter
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.common.sync_count import HostSyncCounter
+from hrl_torch.modules.exploration import Greedy
+from hrl_torch.training.agent import HierarchicalAgent
 
 TEXT_ALGOS = ("hybrid-text", "flat-pg-text", "actor-critic-text")
 

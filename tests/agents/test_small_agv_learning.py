@@ -24,8 +24,8 @@ import torch
 from agents.small_agv import DOMAIN
 from envs import agv_small as agv
 from hrl_torch import analysis as A
-from hrl_torch.continuing import greedy_table
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.continuing import greedy_table
 
 HO, RO = 0.75, 0.15
 ALWAYS_M1 = 0.05  # "always M1" with the recursively optimal DeliverPart1 (agents.small_agv)

@@ -5,7 +5,7 @@ import torch
 
 from agents.taxi_fuel import DOMAIN, FUEL_LOC, taxi_fuel_hierarchy
 from envs.taxi_fuel import CAPACITY, TaxiFuelEnv
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 
 def test_refuel_is_available_below_a_full_tank_and_ends_with_fillup():
@@ -60,7 +60,7 @@ def test_hpgrl_improves_the_greedy_return():
 
 
 def test_running_dry_is_not_a_success():
-    from hrl_torch.evaluation import succeeded as _succeeded
+    from hrl_torch.training.evaluation import succeeded as _succeeded
 
     td = {
         "terminated": torch.tensor([True, True, False]),

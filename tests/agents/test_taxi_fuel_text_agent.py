@@ -6,9 +6,9 @@ import torch
 
 from agents.taxi_fuel_text import DOMAIN, EVAL_HORIZON, fuel_aware_hierarchy, text_hierarchy
 from envs.taxi_fuel_text import N_STATES, TaxiFuelTextEnv, encode
-from hrl_torch import registry
-from hrl_torch.continuing import ThroughputEvaluator
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.continuing import ThroughputEvaluator
 
 
 def test_the_root_sees_the_taxis_location():

@@ -3,7 +3,7 @@
 import pytest
 
 from agents.taxi import DOMAIN
-from hrl_torch.experiment import RunOptions, build_trainer
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 THRESHOLD = 7.5  # the optimal policy's expected return is 7.93
 UNTRAINED = -150.0  # measured before training: -1,874 (MAXQ-Q), -327 (flat Q); they loop

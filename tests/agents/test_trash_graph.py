@@ -3,8 +3,8 @@ from tensordict import TensorDict
 
 from agents.trash import COLLECT_STATES, ROOT_STATES, U1, trash_com_hierarchy, trash_hierarchy
 from envs.trash import CANS, DUMP, N_ACTIONS, PUT, WAIT, TrashEnv
-from hrl_torch.executor import LEVEL, ExecutorConfig, HierarchicalExecutor
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import LEVEL, ExecutorConfig, HierarchicalExecutor
 
 torch.set_num_threads(1)
 
@@ -158,8 +158,7 @@ def test_random_rollouts_of_the_communication_graph():
 
 
 def test_the_cooperative_algorithm_starts_its_joint_root_optimistic_and_the_rest_pessimistic():
-    from hrl_torch import registry
-
+    from hrl_torch.runs import registry
     spec = registry.get("trash").algos["cooperative"]
     learner = spec.make_learner(spec.make_graph(), 2)
     assert bool((learner.heads["Root"]["C"] == 0).all())  # every joint choice gets tried

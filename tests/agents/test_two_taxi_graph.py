@@ -147,8 +147,8 @@ def test_random_rollouts_of_the_communication_graph():
 
 def test_waiting_time_is_the_waits_over_the_deliveries_and_logged_per_seed():
     import agents  # noqa: F401
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     evaluator = registry.get("two-taxi").make_evaluator(None)
     step = TensorDict(

@@ -7,8 +7,8 @@ import agents  # noqa: F401  (registers the domains)
 from agents.two_taxi import two_taxi_hierarchy
 from agents.two_taxi_rules import DIST, NONE, RulePolicy, measure
 from envs.two_taxi import EMPTY, NORTH, PICKUP, STATION_LOC, WAIT, TwoTaxiEnv
-from hrl_torch import registry
-from hrl_torch.multiagent_env import agent_rows
+from hrl_torch.env.multiagent_env import agent_rows
+from hrl_torch.runs import registry
 from tests.agents.test_two_taxi_graph import obs
 from tests.envs.test_two_taxi import place, step
 

@@ -470,7 +470,7 @@ def test_gymnasium_check_env(env_id):
 def test_torchrl_check_env_specs(continuous):
     from torchrl.envs.utils import check_env_specs
 
-    from hrl_torch.torchrl_env import TorchRLEnv
+    from hrl_torch.env.torchrl_env import TorchRLEnv
 
     env = TorchRLEnv(AGVEnv([0, 1], 3, continuous=continuous))
     check_env_specs(env)

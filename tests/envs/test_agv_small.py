@@ -9,7 +9,7 @@ from torchrl.envs.utils import check_env_specs
 import envs  # noqa: F401  (registers hrl/ ids)
 from envs import agv_small as agv
 from envs.agv_small import SmallAGVEnv, decode, encode, transition_tables
-from hrl_torch.torchrl_env import TorchRLEnv
+from hrl_torch.env.torchrl_env import TorchRLEnv
 
 SOUTH, NORTH, EAST, WEST, LOAD, UNLOAD = range(6)
 EMPTY, PART1, PART2 = range(3)

@@ -30,7 +30,7 @@ from envs.four_agv import (
     shortest_paths,
     successors,
 )
-from hrl_torch.rng import BatchRNG
+from hrl_torch.common.rng import BatchRNG
 
 FAR = 1e6  # a timer that will not fire during a test
 

@@ -18,7 +18,7 @@ from envs.four_rooms import (
     transition_tables,
 )
 from envs.grid import EAST, NORTH, SOUTH, WEST, optimal_values
-from hrl_torch.envcheck import check_env
+from hrl_torch.env.envcheck import check_env
 
 A, B, C, D = range(4)
 

@@ -20,7 +20,7 @@ from envs.key_door import (
     encode,
     transition_tables,
 )
-from hrl_torch.envcheck import check_env
+from hrl_torch.env.envcheck import check_env
 
 
 def _step_from(state: int, action: int):

@@ -15,7 +15,7 @@ from envs.ship import (
     ship_dynamics,
     wrap_degrees,
 )
-from hrl_torch.torchrl_env import TorchRLEnv
+from hrl_torch.env.torchrl_env import TorchRLEnv
 
 
 def test_one_step_equals_equation_5_4_by_hand():

@@ -6,7 +6,7 @@ from torchrl.envs.utils import check_env_specs
 
 import envs  # noqa: F401  (registers hrl/ ids)
 from envs.taxi import TaxiEnv, decode, transition_tables
-from hrl_torch.torchrl_env import TorchRLEnv
+from hrl_torch.env.torchrl_env import TorchRLEnv
 
 
 def gym_taxi():

@@ -20,7 +20,7 @@ from envs.taxi_fuel import (
     encode,
     transition_tables,
 )
-from hrl_torch.torchrl_env import TorchRLEnv
+from hrl_torch.env.torchrl_env import TorchRLEnv
 
 IN_TAXI = 4
 R, G, Y, B = range(4)

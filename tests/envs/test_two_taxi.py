@@ -238,8 +238,8 @@ def test_pettingzoo_and_torchrl_forms_pass_their_checkers():
     from pettingzoo.test import api_test, parallel_api_test
     from torchrl.envs.utils import check_env_specs
 
-    from hrl_torch.pettingzoo_env import MultiAgentAECEnv, MultiAgentParallelEnv
-    from hrl_torch.torchrl_multiagent import MultiAgentTorchRLEnv
+    from hrl_torch.env.pettingzoo_env import MultiAgentAECEnv, MultiAgentParallelEnv
+    from hrl_torch.env.torchrl_multiagent import MultiAgentTorchRLEnv
 
     def make(seeds, envs):
         return TwoTaxiEnv(seeds, envs, mean_interarrival=3.0, max_episode_steps=60)

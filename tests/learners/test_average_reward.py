@@ -6,10 +6,9 @@ from tensordict import TensorDict
 
 from agents.small_agv import flat_graph, small_agv_hierarchy
 from envs.agv_small import SmallAGVEnv
-from hrl_torch.env import BatchedEnv
-from hrl_torch.executor import ExecutorConfig
-from hrl_torch.exploration import Constant, EpsilonGreedy
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.env.batched import BatchedEnv
+from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners import (
     GainEstimate,
     HARLearner,
@@ -19,8 +18,9 @@ from hrl_torch.learners import (
     RVIQLearner,
 )
 from hrl_torch.learners.three_part import three_part_targets
-from hrl_torch.tables import TableBank
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import Constant, EpsilonGreedy
+from hrl_torch.modules.tables import TableBank
+from hrl_torch.training.trainer import TrainConfig, Trainer
 
 HIERARCHICAL = {
     "har": lambda g, p, ct: HARLearner(g, p, 0.3, all_states=True, continuous=ct),
@@ -283,7 +283,7 @@ def test_hh_refuses_a_model_that_does_not_fit():
 
 
 def test_greedy_table_reads_the_learner():
-    from hrl_torch.continuing import greedy_table
+    from hrl_torch.training.continuing import greedy_table
 
     g = two_step_graph(True)
     learner = HARLearner(g, 1)

@@ -7,13 +7,13 @@ computed by dynamic programming over the hierarchy and differentiated with autog
 import pytest
 import torch
 
-from hrl_torch.agent import with_values
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.exploration import Greedy
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import HierarchicalExecutor
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig, PGPolicy
-from hrl_torch.rng import BatchRNG
-from hrl_torch.trainer import TrainConfig, Trainer
+from hrl_torch.modules.exploration import Greedy
+from hrl_torch.training.agent import with_values
+from hrl_torch.training.trainer import TrainConfig, Trainer
 from tests.helpers import TableEnv
 
 # a 5-state corridor: a0 moves right, a1 moves left (0 stays); reaching 4 ends the episode

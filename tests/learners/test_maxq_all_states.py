@@ -5,10 +5,10 @@ against the update written out by hand on the scripted chain of
 import pytest
 import torch
 
-from hrl_torch.agent import with_values
-from hrl_torch.executor import ExecutorConfig, HierarchicalExecutor
-from hrl_torch.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.execution.executor import ExecutorConfig, HierarchicalExecutor
+from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
 from hrl_torch.learners import MaxQLearner
+from hrl_torch.training.agent import with_values
 from tests.learners.test_hand_computed_targets import (
     ALPHA,
     GAMMA,

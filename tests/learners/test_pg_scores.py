@@ -19,14 +19,14 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.agent import with_values
-from hrl_torch.env import BatchedEnv
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.env.batched import BatchedEnv
+from hrl_torch.execution.executor import HierarchicalExecutor
+from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
 from hrl_torch.learners.pg import ActorCriticLearner, HPGRLLearner, PGConfig, PGPolicy
-from hrl_torch.policies import squash, unsquash
-from hrl_torch.rng import BatchRNG
-from hrl_torch.tiles import TileCoder
+from hrl_torch.modules.policies import squash, unsquash
+from hrl_torch.modules.tiles import TileCoder
+from hrl_torch.training.agent import with_values
 from tests.helpers import TableEnv
 
 LOW, HIGH = -15.0, 15.0  # PGConfig's default action range

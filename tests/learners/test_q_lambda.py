@@ -3,12 +3,12 @@
 import torch
 
 from agents.taxi import flat_graph
-from hrl_torch.agent import with_values
-from hrl_torch.executor import HierarchicalExecutor
-from hrl_torch.exploration import EpsilonGreedy
+from hrl_torch.common.rng import BatchRNG
+from hrl_torch.execution.executor import HierarchicalExecutor
 from hrl_torch.learners.base import ValuePolicy
 from hrl_torch.learners.q_lambda import QLambdaLearner
-from hrl_torch.rng import BatchRNG
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.training.agent import with_values
 from tests.helpers import random_table_env
 
 S, A = 6, 3

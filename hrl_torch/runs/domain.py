@@ -1,0 +1,231 @@
+"""Domains and algorithms as data: ``DomainSpec`` and ``AlgoSpec``.
+
+A domain module (in ``agents/``) describes itself with a ``DomainSpec``: how to build its env
+for a list of seeds, and per algorithm an ``AlgoSpec`` (graph, learner, exploration, default
+budget), the learner and exploration as data (``hrl_torch.common.config.Make``) whose fields
+``with_overrides`` changes by dotted name. ``hrl_torch.runs.registry`` finds domains by name;
+``hrl_torch.runs.experiment`` runs them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, is_dataclass
+from typing import TYPE_CHECKING
+
+from hrl_torch.common import config
+from hrl_torch.common.config import Make
+from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.training.config import TrainConfig
+
+if TYPE_CHECKING:
+    from hrl_torch.hierarchy.graph import TaskGraph
+    from hrl_torch.learners.base import Learner
+    from hrl_torch.modules.exploration import Exploration
+    from hrl_torch.multiagent.cooperative import MultiAgentConfig
+
+__all__ = [
+    "TRAIN_KEYS",
+    "AlgoSpec",
+    "DomainSpec",
+    "EnvFactory",
+    "algo_family",
+    "setting_names",
+    "with_overrides",
+]
+
+EnvFactory = Callable[[Sequence[int], int, str], object]
+
+
+@dataclass
+class AlgoSpec:
+    """One algorithm on one domain.
+
+    Attributes:
+        make_graph: builds the task graph (a flat graph for flat learners).
+        learner: the learner as data, ``Make(MaxQLearner, alpha=0.5, init=-20.0)``, built as
+            ``learner.build(graph, n_learners)`` (with ``pg``: ``(graph, n_learners, pg)``).
+            A plain function ``(graph, n_learners) -> Learner`` also works (a user's plugin),
+            but then no learner field can be swept or ``--set``.
+        exploration: the exploration as data, ``Make(EpsilonGreedy, epsilon=Make(Linear,
+            start=1.0, end=0.05, steps=Budget(Fraction(1, 3))))``; a ``Budget`` is a share of
+            the run's training budget. A function ``(train_config) -> Exploration`` also works.
+        pg: a policy-gradient learner's option group (``PGConfig``), handed to the learner as
+            its third positional argument; ``None`` for other learners.
+        train: default training options.
+        envs_per_learner: default ``E``.
+        executor: executor options.
+        description: one line for ``hrl-torch list``.
+        multiagent: on a multi-agent domain, how the agents cooperate (``None``: selfish agents
+            with their own tables); the learner then gets the number of table sets.
+        env_options: keyword arguments of the domain's ``make_env`` for this algorithm (e.g.
+            one agent instead of four).
+
+    Every field of ``learner``, ``exploration`` and ``pg`` has a dotted name
+    (``learner.alpha``, ``exploration.epsilon.end``, ``pg.alpha``): ``settings`` lists them,
+    ``with_overrides`` changes them (the names ``hrl-torch sweep --grid`` and ``--set`` take).
+    """
+
+    make_graph: Callable[[], TaskGraph]
+    learner: Make | Callable[[TaskGraph, int], Learner]
+    exploration: Make | Callable[[TrainConfig], Exploration]
+    pg: object | None = None
+    train: TrainConfig = field(default_factory=TrainConfig)
+    envs_per_learner: int = 64
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
+    description: str = ""
+    multiagent: MultiAgentConfig | None = None
+    env_options: dict = field(default_factory=dict)
+
+    def make_learner(self, graph: TaskGraph, n_learners: int) -> Learner:
+        """The learner for ``n_learners`` table sets on ``graph``."""
+        # (the learner gets its own copy of ``pg``: a spec's setting is never shared or changed)
+        pg = None if self.pg is None else dataclasses.replace(self.pg)
+        positional = (graph, n_learners) if pg is None else (graph, n_learners, pg)
+        if isinstance(self.learner, Make):
+            return self.learner.build(*positional)
+        return self.learner(*positional)
+
+    def make_exploration(self, train: TrainConfig) -> Exploration:
+        """The exploration; its ``Budget`` shares read ``train.steps``."""
+        if isinstance(self.exploration, Make):
+            return self.exploration.build(budget=train.steps)
+        return self.exploration(train)
+
+    def settings(self, classes: bool = True) -> dict:
+        """Every field of the learner, exploration and PG setting by dotted name, as used.
+
+        With ``classes`` a record's own name holds its class: ``{"learner": "MaxQLearner",
+        "learner.alpha": 0.5, ..., "exploration.epsilon.end": 0.05, ...}``.
+        """
+        out = {}
+        for part, value in self._parts().items():
+            if isinstance(value, Make) or is_dataclass(value):
+                out.update(config.fields(value, part, self._positional(part), classes))
+        return out
+
+    def _parts(self) -> dict:
+        return {"learner": self.learner, "exploration": self.exploration, "pg": self.pg}
+
+    def _positional(self, part: str) -> int:
+        """Positional values the part's build gets (those parameters are not fields)."""
+        return {"learner": 2 if self.pg is None else 3}.get(part, 0)
+
+
+#: the numeric ``TrainConfig`` fields ``with_overrides`` sets by name
+TRAIN_KEYS = (
+    "steps",
+    "eval_every",
+    "eval_episodes",
+    "eval_max_steps",
+    "log_every",
+    "threshold",
+    "checkpoint_every",
+)
+
+
+def setting_names(spec: AlgoSpec) -> list[str]:
+    """The names of the values ``with_overrides`` sets on ``spec``.
+
+    It also takes a record's own name (``exploration.epsilon``) to replace the whole record.
+    """
+    return [*TRAIN_KEYS, "envs_per_learner", *spec.settings(classes=False)]
+
+
+def with_overrides(spec: AlgoSpec, overrides: dict) -> AlgoSpec:
+    """``spec`` with settings changed by name; ``spec`` itself is unchanged (thread-safe).
+
+    Names: the ``TrainConfig`` fields of ``TRAIN_KEYS`` and ``envs_per_learner`` (whole
+    numbers; ``threshold`` any number), and every dotted name ``spec.settings()`` lists
+    (``learner.alpha``, ``exploration.epsilon.end``, ``pg.alpha``); a bare learner argument
+    (``alpha``) means ``learner.alpha``. Learner, exploration and PG values are not checked
+    here (a tensor per learner is fine): their classes check them when built.
+
+    Raises:
+        ValueError: one line: an unknown name (with the names there are), or a bad type for a
+            ``TrainConfig`` field or ``envs_per_learner``.
+    """
+    for name, value in overrides.items():
+        spec = _with(spec, _full_name(spec, name), value)
+    return spec
+
+
+def _full_name(spec: AlgoSpec, name: str) -> str:
+    if name in (*TRAIN_KEYS, "envs_per_learner"):
+        return name
+    names = spec.settings()
+    if name in names and "." in name:
+        return name
+    if f"learner.{name}" in names:  # the short form of a learner argument
+        return f"learner.{name}"
+    learner = names.get("learner", "a function (no fields)")
+    raise ValueError(
+        f"cannot sweep {name}: choose from {', '.join(setting_names(spec))} (learner: {learner})"
+    )
+
+
+def _with(spec: AlgoSpec, name: str, value) -> AlgoSpec:
+    """``spec`` with one known name set."""
+    if name in (*TRAIN_KEYS, "envs_per_learner"):
+        kinds = (int, float) if name == "threshold" else int
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            what = "a number" if name == "threshold" else "a whole number"
+            raise ValueError(f"{name} must be {what}, got {value!r}")
+        if name == "envs_per_learner":
+            return dataclasses.replace(spec, envs_per_learner=value)
+        return dataclasses.replace(spec, train=dataclasses.replace(spec.train, **{name: value}))
+    part, _, path = name.partition(".")
+    old = spec._parts()[part]
+    new = config.replace(old, path, value, spec._positional(part))
+    return dataclasses.replace(spec, **{part: new})
+
+
+def algo_family(**shared) -> Callable[..., AlgoSpec]:
+    """A domain's ``AlgoSpec`` maker with the fields its algorithms share bound once.
+
+    ``shared`` are ``AlgoSpec`` fields (learner, exploration, budget, ...); the maker takes
+    ``(make_graph, description, multiagent=None, **env_options)``, the fields that differ.
+    """
+
+    def spec(make_graph, description: str, multiagent=None, **env_options) -> AlgoSpec:
+        return AlgoSpec(
+            make_graph=make_graph,
+            description=description,
+            multiagent=multiagent,
+            env_options=env_options,
+            **shared,
+        )
+
+    return spec
+
+
+@dataclass
+class DomainSpec:
+    """A domain: its env factory, backends, algorithms and reference values.
+
+    Attributes:
+        name: CLI name (``hrl-torch train NAME``).
+        make_env: ``(seeds, envs_per_learner, backend) -> env``.
+        algos: algorithm name -> spec.
+        backends: env backends ``make_env`` accepts (``"torch"`` first).
+        eval_seed: seed of the common evaluation episodes (the same for every learner).
+        reference: named reference values drawn on the plots (e.g. the optimal return).
+        description: one line for ``hrl-torch list``.
+        make_evaluator: ``(train_config) -> evaluator`` replacing the episodic evaluation
+            (continuing tasks: ``hrl_torch.training.continuing.ThroughputEvaluator``); the eval env
+            then has ``eval_episodes`` rows per learner.
+        make_eval_env: the evaluation env's factory when it differs from the training env's
+            (e.g. training restarts a continuing task now and then to see every start
+            state; evaluation measures the long run without restarts). Default: ``make_env``.
+    """
+
+    name: str
+    make_env: EnvFactory
+    algos: dict[str, AlgoSpec]
+    backends: tuple[str, ...] = ("torch",)
+    eval_seed: int = 1_000_003
+    reference: dict[str, float] = field(default_factory=dict)
+    description: str = ""
+    make_evaluator: Callable[[TrainConfig], object] | None = None
+    make_eval_env: EnvFactory | None = None

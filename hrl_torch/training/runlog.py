@@ -1,0 +1,363 @@
+"""Run folders: TensorBoard events, a CSV of every logged point, PNG curves and ``summary.json``.
+
+Layout of ``runs/{domain}__{algo}__{timestamp}/``::
+
+    tb/seed_<s>/      TensorBoard events, one run per seed (tags ``charts/``, ``hrl/<subtask>/``,
+                      ``losses/<subtask>/``, ``perf/``; hyperparameters once as text)
+    progress.csv      long format, one row per (step, seed, metric): step,seed,metric,value
+    eval_episodes.csv every greedy evaluation episode: step, seed, episode, return, length,
+                      success, truncated, start (its reset observation), the root's decisions
+    <metric>.png      mean and 95% interval over seeds of each curve metric
+    summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
+    checkpoint.pt     the latest checkpoint (when checkpointing is on)
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import io
+import json
+import math
+import subprocess
+import sys
+import time
+import types
+import warnings
+from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@functools.cache
+def code_version() -> dict:
+    """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
+    from hrl_torch import __version__
+    root = Path(__file__).resolve().parents[1]
+    out = {"version": __version__, "commit": None, "dirty": None}
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        if head.returncode == 0:
+            status = subprocess.run(
+                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+            )
+            out["commit"] = head.stdout.strip()
+            out["dirty"] = bool(status.stdout.strip()) if status.returncode == 0 else None
+    except (OSError, subprocess.TimeoutExpired):  # no git here: the version alone
+        pass
+    return out
+
+
+def settings_of(obj) -> dict:
+    """An object's class and its plain settings (numbers, strings, flags, schedules)."""
+    out: dict = {"class": type(obj).__name__}
+    for key, value in vars(obj).items():
+        if key.startswith("_") or key == "training":  # private state; nn.Module's mode flag
+            continue
+        if isinstance(value, (bool, int, float, str)):
+            out[key] = value
+        elif is_dataclass(value):  # a schedule (Linear(...)) or an option group (PGConfig)
+            out[key] = repr(value)
+    return out
+
+
+#: callables logged by their name (a class, a function); any other by ``repr``
+_NAMED = (type, types.FunctionType, types.BuiltinFunctionType, types.MethodType)
+
+
+def hparams_of(**parts) -> dict:
+    """Flatten dataclasses and plain values into one hyperparameter dict for logging."""
+    out = {}
+    for name, value in parts.items():
+        if is_dataclass(value):
+            out.update({f"{name}.{k}": v for k, v in asdict(value).items()})
+        elif callable(value):
+            out[name] = value.__name__ if isinstance(value, _NAMED) else repr(value)
+        else:
+            out[name] = value
+    return out
+
+
+def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
+    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    base = Path(root) / f"{domain}__{algo}__{stamp}"
+    path, k = base, 1
+    while path.exists():
+        path, k = Path(f"{base}-{k}"), k + 1
+    path.mkdir(parents=True)
+    return path
+
+
+class RunLogger:
+    """Writes scalars for every seed to TensorBoard and the CSV; draws the curves at the end.
+
+    Args:
+        run_dir: the run folder.
+        seeds: the seed of each learner (one TensorBoard run each).
+        hparams: logged once per seed as text and to ``hparams.json``.
+        tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
+        resumed_at: a resumed run's checkpoint step. ``hparams.json`` keeps the original
+            settings and appends this resume to its ``"resumes"``; rows logged after the step
+            (by a run stopped between checkpoints) are dropped from the CSVs and
+            purged from TensorBoard, so the continuation logs no step twice.
+    """
+
+    def __init__(
+        self,
+        run_dir: Path,
+        seeds: Sequence[int],
+        hparams: dict,
+        tensorboard: bool = True,
+        resumed_at: int | None = None,
+    ) -> None:
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.seeds = list(seeds)
+        self.csv_path = self.run_dir / "progress.csv"
+        hparams = self._record_hparams(hparams, resumed_at)
+        self.episodes_path = self.run_dir / "eval_episodes.csv"
+        if resumed_at is not None:
+            for path in (self.csv_path, self.episodes_path):
+                if path.exists():
+                    _drop_rows_after(path, resumed_at)
+        if not self.csv_path.exists():
+            self.csv_path.write_text("step,seed,metric,value\n")
+        self.writers = []
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            purge = None if resumed_at is None else resumed_at + 1
+            text = "\n".join(f"    {k}: {v}" for k, v in sorted(hparams.items()))
+            for s in self.seeds:
+                w = SummaryWriter(str(self.run_dir / "tb" / f"seed_{s}"), purge_step=purge)
+                if resumed_at is None:
+                    w.add_text("hparams", text, 0)
+                self.writers.append(w)
+
+    def _record_hparams(self, hparams: dict, resumed_at: int | None) -> dict:
+        """Write ``hparams.json``: the original's settings, plus every resume."""
+        path = self.run_dir / "hparams.json"
+        hparams = json.loads(json.dumps(hparams, default=json_default))  # as written: comparable
+        if resumed_at is not None and path.exists():
+            original = json.loads(path.read_text())
+            resume = {"at_step": resumed_at, "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+            resume.update({k: v for k, v in hparams.items() if original.get(k) != v})
+            original.setdefault("resumes", []).append(resume)
+            hparams = original
+        path.write_text(json.dumps(hparams, indent=2))
+        return hparams
+
+    def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
+        """Log ``{tag: [value per seed]}`` at env step ``step`` (NaN values are skipped)."""
+        rows = []
+        for tag, values in per_seed.items():
+            for k, seed in enumerate(self.seeds):
+                v = float(values[k])
+                if math.isnan(v):
+                    continue
+                rows.append((step, seed, tag, f"{v:.6g}"))
+                if self.writers:
+                    self.writers[k].add_scalar(tag, v, step)
+        with open(self.csv_path, "a", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerows(rows)
+
+    def log_episodes(self, step: int, records, node_names: Sequence[str]) -> None:
+        """Append one evaluation's episodes (``Trainer.evaluate_episodes``) to the CSV.
+
+        ``eval_episodes.csv`` gets the start's fields and the root's decisions by name.
+        """
+        new = not self.episodes_path.exists()
+        rows = []
+        for r in range(records.batch_size[0]):
+            n = int(records["n_decisions"][r])
+            names = [node_names[int(k)] for k in records["decisions"][r, :n]]
+            rows.append(
+                (
+                    step,
+                    int(records["seed"][r]),
+                    int(records["episode"][r]),
+                    f"{float(records['return'][r]):.6g}",
+                    int(records["length"][r]),
+                    int(records["success"][r]),
+                    int(records["truncated"][r]),
+                    fields_text(records["start"][r]),
+                    " ".join(names) + (" ..." if n > len(names) else ""),
+                )
+            )
+        with open(self.episodes_path, "a", newline="") as f:
+            writer = csv.writer(f, lineterminator="\n")
+            if new:
+                writer.writerow(EPISODE_COLUMNS)
+            writer.writerows(rows)
+
+    def close(self) -> None:
+        """Flush TensorBoard files."""
+        for w in self.writers:
+            w.flush()
+            w.close()
+
+    def write_summary(self, summary: dict) -> Path:
+        """Write ``summary.json``."""
+        path = self.run_dir / "summary.json"
+        path.write_text(json.dumps(summary, indent=2, default=json_default))
+        return path
+
+
+EPISODE_COLUMNS = (
+    "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions"
+)  # fmt: skip
+
+
+def read_episodes(run_dir: str | Path, step: int | None = None) -> list[dict]:
+    """The episodes of a run folder's latest evaluation (or the one at ``step``), worst first.
+
+    Read from ``eval_episodes.csv``, numbers parsed.
+    """
+    with open(Path(run_dir) / "eval_episodes.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return []
+    at = max(int(r["step"]) for r in rows) if step is None else step
+    out = []
+    for r in rows:
+        if int(r["step"]) != at:
+            continue
+        out.append(
+            {
+                **r,
+                **{k: int(r[k]) for k in ("step", "seed", "episode", "length")},
+                "return": float(r["return"]),
+                "success": r["success"] == "1",
+                "truncated": r["truncated"] == "1",
+            }
+        )
+    return sorted(out, key=lambda r: (r["return"], r["seed"], r["episode"]))
+
+
+def fields_text(td) -> str:
+    """``k=v`` for every field of one observation (floats with 3 significant digits)."""
+    parts = []
+    named = {  # nested keys (a multi-agent start's "agents" fields) as dotted names
+        key if isinstance(key, str) else ".".join(key): value
+        for key, value in td.items(include_nested=True, leaves_only=True)
+    }
+    for name, value in sorted(named.items()):
+        flat = value.flatten().tolist()
+        text = ",".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in flat)
+        parts.append(f"{name}={text}")
+    return " ".join(parts)
+
+
+def _drop_rows_after(csv_path: Path, step: int) -> None:
+    """Keep the whole rows of a run's CSV logged at or before ``step`` (atomically).
+
+    A process killed mid-write leaves a partial last row (``12,0,charts/eval_return``): it has
+    no line end or too few fields, and goes with the rows after the checkpoint.
+    """
+    text = csv_path.read_text()
+    text = text[: text.rfind("\n") + 1]  # a row without its line end was cut short
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        return
+    header = rows[0]
+    kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]
+    tmp = csv_path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        csv.writer(f, lineterminator="\n").writerows(kept)
+    tmp.replace(csv_path)
+
+
+def _step_of(row: list[str]) -> float:
+    """A row's step (``inf`` for a damaged one, so that it is dropped)."""
+    try:
+        return int(row[0])
+    except ValueError:
+        return math.inf
+
+
+def json_default(x):
+    """A NumPy number as a number, a tensor as its number or list of numbers, others as text."""
+    if isinstance(x, np.generic):
+        return x.item()
+    torch = sys.modules.get("torch")  # no tensor exists unless torch was imported
+    if torch is not None and isinstance(x, torch.Tensor):
+        return x.tolist()  # a per-learner value: one number per learner
+    return str(x)
+
+
+def read_curves(csv_path: Path, metric: str) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Steps and ``{seed: values}`` of one metric from a progress CSV (missing -> NaN).
+
+    A row cut short by a crash (no value) is skipped.
+    """
+    values: dict[int, dict[int, float]] = {}
+    with open(csv_path) as f:
+        for row in csv.DictReader(f):
+            if row["metric"] == metric and row.get("value"):
+                values.setdefault(int(row["seed"]), {})[int(row["step"])] = float(row["value"])
+    grid = np.array(sorted({step for d in values.values() for step in d}))
+    return grid, {s: np.array([d.get(t, math.nan) for t in grid]) for s, d in values.items()}
+
+
+# two-sided 95% quantiles of Student's t for 1..30 degrees of freedom
+_T975 = (
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
+)
+
+
+def t_quantile_975(dof: int) -> float:
+    """The 0.975 quantile of Student's t with ``dof`` degrees of freedom (1.96 above 30)."""
+    if dof < 1:
+        return 0.0
+    return _T975[dof - 1] if dof <= len(_T975) else 1.96
+
+
+def mean_ci95(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over rows (seeds) and the half-width of a 95% t-interval, per column (NaN-aware)."""
+    n = np.sum(~np.isnan(matrix), axis=0)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(matrix, axis=0)
+        std = np.nanstd(matrix, axis=0, ddof=1)
+    half = np.array([t_quantile_975(int(k) - 1) for k in n]) * np.nan_to_num(std)
+    return mean, half / np.sqrt(np.maximum(n, 1))
