@@ -75,12 +75,13 @@ from envs.agv import (
     shortest_paths,
 )
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import HARLearner, HDRLearner, RARLearner, RVIQLearner
 from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig
 
 N_LEVELS = CAPACITY + 1
 ROOT_STATES = N_LOCATIONS * N_LEVELS ** (2 * N_STATIONS) * 2**N_STATIONS

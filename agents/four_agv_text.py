@@ -43,20 +43,18 @@ import torch
 from tensordict import TensorDict
 
 from agents.four_agv import (
-    DISPATCH_RULES,
     NAV_TARGETS,
-    NO_JOB,
     Navigate,
     algo_spec,
     da_states,
     dm_states,
     flat_graph,
-    lexicographic_argmax,
     maxq_learner,
     primitives,
     station_fields,
     step_cost,
 )
+from agents.four_agv_rules import DISPATCH_RULES, NO_JOB, lexicographic_argmax
 from envs.four_agv import (
     BAYS,
     CAPACITY,
@@ -75,13 +73,14 @@ from envs.four_agv import (
     FourAGVTiming,
 )
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.learners import RuleLearner
 from hrl_torch.modules.exploration import Linear
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig
 
 #: values per station in the root state: (part ready 0/1) x (Pi empty / partly full / full)
 STATION_CODES = 6

@@ -45,7 +45,8 @@ from envs.four_rooms import (
     FourRoomsEnv,
     cell_index,
 )
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 
 MOVES = ["North", "South", "East", "West"]
 

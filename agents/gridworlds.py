@@ -10,8 +10,8 @@ from envs.grid import TableEnv, optimal_values
 from hrl_torch.common.config import Make
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 
 EVAL_SEED = 1_000_003
 EVAL_EPISODES = 100

@@ -47,7 +47,8 @@ from envs.key_door import (
     KeyDoorEnv,
     cell_index,
 )
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 
 MOVES = ["North", "South", "East", "West"]
 KEY_NAV = [f"Navigate_K{k}" for k in range(len(KEY_SPOTS))]

@@ -38,20 +38,23 @@ from agents.ship import (
     LOW_LEVEL_GUARD,
     LOW_LEVEL_REWARDS,
     SUBTASK_NAMES,
-    FlatPGRL,
-    ShipActorCritic,
-    ShipMonitor,
-    actor_critic_learner,
     direction_groups,
-    flat_pg_learner,
     local_failure,
     local_success,
     low_level_feature_rewards,
     low_level_tile_coder,
 )
 from agents.ship import bearing as goal_bearing
+from agents.ship_learners import (
+    FlatPGRL,
+    ShipActorCritic,
+    ShipMonitor,
+    actor_critic_learner,
+    flat_pg_learner,
+)
 from envs.ship import ShipSteeringEnv, wrap_degrees
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners.hybrid import HybridLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.learners.pg_traces import entry_weights, static_pass

@@ -71,7 +71,8 @@ from envs.agv_small import (
 )
 from hrl_torch.common.config import Make
 from hrl_torch.common.devices import constant_on
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import (
     HARLearner,
     HDRLearner,
@@ -81,9 +82,9 @@ from hrl_torch.learners import (
     RVIQLearner,
 )
 from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig
 
 MOVES = ("South", "North", "East", "West")  # env actions 0-3
 

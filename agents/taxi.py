@@ -32,11 +32,12 @@ from tensordict import TensorDict
 
 from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 
 IN_TAXI = 4
 STATION_NAMES = "RGYB"
@@ -60,7 +61,7 @@ class Navigate(Subtask):
         return obs["taxi_loc"] == self.target_loc
 
 
-def _bind(obs_key: str):
+def bind_child_mask(obs_key: str):
     """``child_mask`` for [Navigate_R..B, X]: allow Navigate(t) only for t = ``obs[obs_key]``."""
 
     def mask(obs: TensorDict) -> torch.Tensor:
@@ -78,7 +79,7 @@ def get_and_put(nav_names: list[str]) -> tuple[Subtask, Subtask]:
         n_states=125,
         abstract=lambda o: o["taxi_loc"] * 5 + o["passenger"],
         terminated=lambda o: o["passenger"] == IN_TAXI,
-        child_mask=_bind("passenger"),
+        child_mask=bind_child_mask("passenger"),
     )
     put = Subtask(
         "Put",
@@ -86,7 +87,7 @@ def get_and_put(nav_names: list[str]) -> tuple[Subtask, Subtask]:
         n_states=100,
         abstract=lambda o: o["taxi_loc"] * 4 + o["destination"],
         terminated=lambda o: o["passenger"] != IN_TAXI,
-        child_mask=_bind("destination"),
+        child_mask=bind_child_mask("destination"),
     )
     return get, put
 

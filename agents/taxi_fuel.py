@@ -48,12 +48,13 @@ from agents.taxi import (
 )
 from envs.taxi_fuel import CAPACITY, FUEL_STATION, N_ACTIONS, N_FUEL, N_STATES, TaxiFuelEnv
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.modules.exploration import Greedy
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 
 FUEL_LOC = FUEL_STATION[0] * 5 + FUEL_STATION[1]
 

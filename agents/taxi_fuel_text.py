@@ -29,7 +29,7 @@ from agents.taxi import (
     IN_TAXI,
     PESSIMISTIC_INIT,
     Navigate,
-    _bind,
+    bind_child_mask,
     epsilon_first_third,
     flat_graph,
     taxi_primitives,
@@ -37,7 +37,8 @@ from agents.taxi import (
 from agents.taxi_fuel import HPGRL_PG, NavigateToFuel, taxi_fuel_hierarchy
 from envs.taxi_fuel_text import CAPACITY, FACTORS, N_STATES, TaxiFuelTextEnv
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner
 from hrl_torch.modules.exploration import Greedy, linear_epsilon
@@ -104,12 +105,12 @@ def fuel_aware_hierarchy() -> TaskGraph:
     get = Subtask(
         "Get", [*names, "Pickup"], n_states=125 * F,
         abstract=lambda o: (o["taxi_loc"] * 5 + o["passenger"]) * F + o["fuel_level"],
-        terminated=lambda o: o["passenger"] == IN_TAXI, child_mask=_bind("passenger"),
+        terminated=lambda o: o["passenger"] == IN_TAXI, child_mask=bind_child_mask("passenger"),
     )  # fmt: skip
     put = Subtask(
         "Put", [*names, "Putdown"], n_states=100 * F,
         abstract=lambda o: (o["taxi_loc"] * 4 + o["destination"]) * F + o["fuel_level"],
-        terminated=lambda o: o["passenger"] != IN_TAXI, child_mask=_bind("destination"),
+        terminated=lambda o: o["passenger"] != IN_TAXI, child_mask=bind_child_mask("destination"),
     )  # fmt: skip
     refuel = Subtask(
         "Refuel", ["Navigate_F", "Fillup"], n_states=25, abstract=lambda o: o["taxi_loc"],

@@ -22,8 +22,8 @@ from __future__ import annotations
 from agents.taxi import epsilon_first_third, flat_graph
 from hrl_torch.common.config import Make
 from hrl_torch.learners import SMDPQLearner
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 
 # The best settings of docs/defaults.md (scripts/defaults_table.py, 5 seeds). FrozenLake:
 # optimistic values (+1, the goal's reward); pessimistic ones (-1) never reached the goal, as a

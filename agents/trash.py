@@ -71,14 +71,15 @@ from envs.trash import (
     TrashEnv,
 )
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import linear_epsilon
 from hrl_torch.modules.tables import RowSteps
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig
 
 MOVE_NAMES = ["North", "South", "East", "West"]
 #: the children of the cooperative Root (Figure 6.1) or of Com / NotCom (Figure 6.9)

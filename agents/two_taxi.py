@@ -126,7 +126,8 @@ from envs.two_taxi import (
     TwoTaxiEnv,
 )
 from hrl_torch.common.config import Make
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import linear_epsilon
 from hrl_torch.multiagent.cooperative import (
@@ -135,9 +136,9 @@ from hrl_torch.multiagent.cooperative import (
     MultiAgentConfig,
     cooperative_graph,
 )
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec, algo_family
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig
 
 #: the text's order of the Root's children: U_1
 U1 = ("GetB", "GetG", "GetR", "GetY", "Wait", "Put")

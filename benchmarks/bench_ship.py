@@ -18,9 +18,12 @@ from dataclasses import replace
 
 import torch
 
-from agents.ship import DOMAIN, PARAMS, make_hybrid, ship_hierarchy
+from agents.ship import ship_hierarchy
+from agents.ship_domain import DOMAIN
+from agents.ship_learners import PARAMS, make_hybrid
 from envs.ship import ShipSteeringEnv
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 
 def _learner(seeds, online=False):

@@ -33,7 +33,8 @@ def __getattr__(name: str):
     if name in compat.MOVED:  # ``from hrl_torch import trainer`` of 0.1
         new = f"hrl_torch.{compat.MOVED[name]}"
         compat.warn_moved(f"hrl_torch.{name}", new)
-        return importlib.import_module(new)
+        globals()[name] = module = importlib.import_module(new)  # warned once
+        return module
     raise AttributeError(f"module 'hrl_torch' has no attribute {name!r}")
 
 

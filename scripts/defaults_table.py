@@ -32,8 +32,9 @@ import torch
 from agents import four_rooms, key_door, taxi, taxi_fuel, toy_text
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import HDRLearner, MaxQLearner, SMDPQLearner
-from hrl_torch.runs.experiment import DomainSpec, RunOptions, build_trainer
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import DomainSpec
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+from hrl_torch.training.config import TrainConfig
 
 LEARNERS = {"maxq-q": MaxQLearner, "hdr": HDRLearner, "q": SMDPQLearner}
 HIERARCHICAL = ("maxq-q", "hdr")

@@ -11,10 +11,12 @@ from tensordict import TensorDict
 
 from hrl_torch.common.devices import constant_on
 from hrl_torch.env.batched import BatchedEnv
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy, Linear
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 # 1. The env: a 5 x 9 grid, wall at column 4 except the doorway at row 2.
 ROWS, COLS, WALL_COL, DOOR_ROW = 5, 9, 4, 2

@@ -27,17 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from agents.ship import (
-    DIRECTION_NODES,
-    DOMAIN,
-    PARAMS,
-    SUBTASK_NAMES,
-    flat_graph,
-    make_actor_critic,
-    make_flat_pg,
-    make_hybrid,
-    ship_hierarchy,
-)
+from agents.ship import DIRECTION_NODES, SUBTASK_NAMES, flat_graph, ship_hierarchy
+from agents.ship_domain import DOMAIN
+from agents.ship_learners import PARAMS, make_actor_critic, make_flat_pg, make_hybrid
 from agents.ship_text import (
     TEXT,
     make_actor_critic_text,
@@ -46,7 +38,7 @@ from agents.ship_text import (
 )
 from envs.ship import FIGURE_5_12_STARTS, ShipSteeringEnv
 from hrl_torch.common.rng import BatchRNG
-from hrl_torch.execution.executor import LEVEL
+from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.modules.exploration import Greedy
 from hrl_torch.training.agent import HierarchicalAgent
 from hrl_torch.training.collector import collect

@@ -23,7 +23,7 @@ import time
 
 import torch
 
-from agents.four_agv import DISPATCH_RULES
+from agents.four_agv_rules import DISPATCH_RULES
 from agents.four_agv_text import PerAGVRule
 from envs.four_agv import FIGURE_6_5, TABLE_6_1, FourAGVEnv
 

@@ -31,15 +31,14 @@ from agents.ship import (
     LOCAL_GOAL,
     LOCAL_START,
     LOW_LEVEL_GUARD,
-    PARAMS,
     SUBTASK_NAMES,
     bearing,
     local_failure,
     local_success,
     low_level_tile_coder,
-    make_hybrid,
     ship_hierarchy,
 )
+from agents.ship_learners import PARAMS, make_hybrid
 from agents.ship_text import TEXT, make_hybrid_text, subtask_coder
 from envs.ship import MAX_TURN, ship_dynamics, wrap_degrees
 from hrl_torch.modules.policies import squash

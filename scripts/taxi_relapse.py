@@ -17,7 +17,8 @@ from agents.taxi import PESSIMISTIC_INIT, taxi_hierarchy
 from envs.taxi import TaxiEnv
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy, Linear
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 
 def run(init: float, seeds: list[int], steps: int, envs: int) -> Trainer:

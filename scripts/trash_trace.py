@@ -26,7 +26,8 @@ from agents import trash as T
 from agents.trash import visit_step_size
 from envs.trash import DUMP_REWARD
 from hrl_torch.execution.executor import ExecutorConfig
-from hrl_torch.hierarchy.graph import Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy, Linear
 from hrl_torch.multiagent.cooperative import Cooperation, CooperativeSubtask, cooperation_levels

@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.env.batched import BatchedEnv
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 
 
 class TableEnv(BatchedEnv):

@@ -19,7 +19,8 @@ from hrl_torch.analysis.abstraction import (
     MAX_NODE_IRRELEVANCE,
     RESULT_DISTRIBUTION_IRRELEVANCE,
 )
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 
 
 def model_of(next_state, reward):

@@ -8,7 +8,8 @@ from agents.small_agv import small_agv_hierarchy
 from envs import agv_small as agv
 from hrl_torch import analysis as A
 from hrl_torch.execution.executor import HierarchicalExecutor
-from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 
 
 def model_of(next_state, reward):

@@ -265,7 +265,8 @@ def test_the_documented_two_rooms_example_replays_on_meta():
     """The walkthrough's env (docs/your-own-hierarchy.md) keeps the any-device rules."""
     from hrl_torch.learners import MaxQLearner
     from hrl_torch.modules.exploration import EpsilonGreedy
-    from hrl_torch.training.trainer import TrainConfig, Trainer
+    from hrl_torch.training.config import TrainConfig
+    from hrl_torch.training.trainer import Trainer
     from scripts.example_two_rooms import TwoRoomsEnv, two_rooms_hierarchy
 
     graph = two_rooms_hierarchy()

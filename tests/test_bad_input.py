@@ -7,14 +7,10 @@ import pytest
 import torch
 
 from envs.taxi import TaxiEnv
-from hrl_torch.execution.executor import (
-    LEVEL,
-    PRIMITIVE,
-    BadStepError,
-    ExecutorConfig,
-    HierarchicalExecutor,
-)
-from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.execution.executor import BadStepError, ExecutorConfig, HierarchicalExecutor
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 from hrl_torch.learners import HARLearner, MaxQLearner, SMDPQLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.learners.q_lambda import QLambdaLearner

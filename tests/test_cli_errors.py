@@ -277,7 +277,7 @@ def test_a_learner_built_on_another_graph_is_named():
 
 
 def test_train_config_refuses_negative_intervals():
-    from hrl_torch.training.trainer import TrainConfig
+    from hrl_torch.training.config import TrainConfig
 
     for bad in ({"eval_every": -5}, {"steps": -1}, {"log_every": 0}, {"threshold": float("nan")}):
         with pytest.raises(ValueError, match="TrainConfig"):

@@ -5,7 +5,7 @@ import torch
 
 from agents.two_taxi import COM_COOPERATION, U1, com_graph
 from envs.two_taxi import NO_PASSENGER, TwoTaxiEnv
-from hrl_torch.hierarchy.graph import GraphError
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy, Greedy
 from hrl_torch.multiagent.cooperative import (

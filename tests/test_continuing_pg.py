@@ -7,8 +7,9 @@ from agents.small_agv import make_env, small_agv_hierarchy, weighted_deliveries
 from hrl_torch.learners import HPGRLLearner, PGConfig, PGPolicy, SMDPQLearner
 from hrl_torch.learners.hybrid import HybridLearner, HybridPolicy
 from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.trainer import Trainer
 
 
 def run(make_learner, steps: int) -> Trainer:

@@ -8,7 +8,8 @@ from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.modules.exploration import Greedy, masked_argmax
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput
 from hrl_torch.modules.policies import sample_categorical
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 from tests.helpers import TableEnv
 from tests.learners.test_hpgrl import NEXT, REWARD, STARTS, TERMINAL, N, hierarchy
 

@@ -17,7 +17,8 @@ from hrl_torch.runs import registry
 from hrl_torch.runs.cli import main
 from hrl_torch.runs.devicecheck import DeviceRuleError, check_any_device
 from hrl_torch.runs.experiment import RunOptions, build_trainer
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 from scripts.example_two_rooms import COLS, MOVES, ROWS, GoTo, TwoRoomsEnv, two_rooms_hierarchy
 
 PLUGIN = Path(__file__).resolve().parents[1] / "examples" / "hrl-corridor"

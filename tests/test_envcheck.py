@@ -8,7 +8,8 @@ from agents.taxi import taxi_hierarchy as make_graph
 from agents.taxi import taxi_primitives
 from envs.taxi import TaxiEnv
 from hrl_torch.env.envcheck import EnvContractError, check_env
-from hrl_torch.hierarchy.graph import Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, run_experiment
 

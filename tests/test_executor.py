@@ -5,13 +5,10 @@ from hypothesis import strategies as st
 from tensordict import TensorDict
 
 from hrl_torch.common.rng import BatchRNG
-from hrl_torch.execution.executor import (
-    Choice,
-    ExecutorConfig,
-    HierarchicalExecutor,
-    SubtaskTimeoutError,
-)
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.execution.executor import ExecutorConfig, HierarchicalExecutor, SubtaskTimeoutError
+from hrl_torch.execution.transitions import Choice
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, ValuePolicy
 from hrl_torch.modules.exploration import EpsilonGreedy
 from hrl_torch.training.agent import with_values
@@ -181,7 +178,7 @@ def test_no_available_child_is_a_clear_error():
     ex = HierarchicalExecutor(graph, 1, 1)
     ctx = graph.context(env.reset())
     learner.evaluate(ctx)
-    from hrl_torch.hierarchy.graph import GraphError
+    from hrl_torch.hierarchy.subtask import GraphError
 
     with pytest.raises(GraphError, match="'Dead' has no available child"):
         ex.act(ctx, policy, 0)

@@ -2,7 +2,8 @@
 
 import torch
 
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE, HierarchicalExecutor
+from hrl_torch.execution.executor import HierarchicalExecutor
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
 from tests.learners.test_q_lambda_and_hh_exact import chain
 
 

@@ -3,7 +3,8 @@ import torch
 from tensordict import TensorDict
 
 from agents.taxi import taxi_hierarchy
-from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 
 
 def obs(b=3, **fields):

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch.hierarchy.graph import Primitive, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 

@@ -1,21 +1,46 @@
-"""The import graph of ``hrl_torch`` (docs/design.md, "Module map"): no cycle, no private
-name read across modules, and a training loop that knows nothing multi-agent."""
+"""The layers of the code (docs/design.md, "Packages"): every import of ``hrl_torch/``, ``envs/``
+and ``agents/`` (top level, in functions, under TYPE_CHECKING) goes to its own layer or one below,
+no cycle anywhere, no private name read across modules, no file over 600 lines."""
 
 import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGE = ROOT / "hrl_torch"
+
+#: ``hrl_torch``'s subpackages, lowest first: each imports only its own and the ones before it
+LAYERS = [
+    "common",
+    "hierarchy",
+    "env",
+    "execution",
+    "modules",
+    "learners",
+    "analysis",
+    "training",
+    "multiagent",
+    "runs",
+]
+#: what the domains may import of ``hrl_torch.runs``: the specs and the registry, not the runner
+AGENTS_MAY_USE = {"hrl_torch.runs.domain", "hrl_torch.runs.registry", "hrl_torch.runs"}
 
 
-def _module(path: Path) -> str:
-    parts = path.relative_to(ROOT).with_suffix("").parts
+def _module(root: Path, path: Path) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports() -> dict[str, list[tuple[str, str]]]:
-    """Module -> ``(imported module, imported name)`` for every ``hrl_torch`` import in it."""
-    modules = {_module(p): p for p in PACKAGE.rglob("*.py")}
+def _sources(root: Path) -> dict[str, Path]:
+    return {
+        _module(root, p): p
+        for top in ("hrl_torch", "envs", "agents")
+        for p in (root / top).rglob("*.py")
+    }
+
+
+def _imports(root: Path = ROOT) -> dict[str, list[tuple[str, str]]]:
+    """Module -> ``(imported module, imported name)`` for every import of our own modules."""
+    modules = _sources(root)
+    ours = ("hrl_torch", "envs", "agents")
     out = {}
     for name, path in modules.items():
         found = []
@@ -24,12 +49,45 @@ def _imports() -> dict[str, list[tuple[str, str]]]:
                 for alias in node.names:
                     sub = f"{node.module}.{alias.name}"
                     target = sub if sub in modules else node.module
-                    if target.startswith("hrl_torch") and target in modules:
+                    if target.split(".")[0] in ours:
                         found.append((target, alias.name))
             elif isinstance(node, ast.Import):
-                found += [(a.name, "") for a in node.names if a.name in modules]
+                found += [(a.name, "") for a in node.names if a.name.split(".")[0] in ours]
         out[name] = found
     return out
+
+
+def _layer(module: str) -> int:
+    """The layer of a module: hrl_torch's by subpackage, then envs, then agents."""
+    parts = module.split(".")
+    if parts[0] == "envs":
+        return len(LAYERS)
+    if parts[0] == "agents":
+        return len(LAYERS) + 1
+    if len(parts) == 1 or parts[1] == "common":
+        return 0  # the package itself holds the version and the compatibility finder
+    return LAYERS.index(parts[1])
+
+
+def layer_violations(imports: dict[str, list[tuple[str, str]]]) -> list[str]:
+    """Every import of a module from a layer above its own, and what the domains may not use."""
+    bad = []
+    for m, targets in imports.items():
+        for t, _ in targets:
+            if t == m:
+                continue
+            if _layer(t) > _layer(m):
+                bad.append(f"{m} imports {t} (a layer above)")
+            elif (
+                m.startswith("envs")
+                and t.startswith("hrl_torch")
+                and _layer(t) > _layer("hrl_torch.env")
+            ):
+                bad.append(f"{m} imports {t} (an env needs only hrl_torch.common and .env)")
+            elif m.startswith("agents") and t.startswith("hrl_torch.runs"):
+                if t not in AGENTS_MAY_USE:
+                    bad.append(f"{m} imports {t} (domains use hrl_torch.runs.domain, .registry)")
+    return bad
 
 
 def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -39,7 +97,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
     def visit(node: str) -> list[str] | None:
         state[node] = 1
         path.append(node)
-        for nxt in sorted(graph[node]):
+        for nxt in sorted(graph.get(node, ())):
             if state.get(nxt) == 1:
                 return path[path.index(nxt) :] + [nxt]
             if nxt not in state and (found := visit(nxt)):
@@ -54,16 +112,50 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
-def _graph() -> dict[str, set[str]]:
-    # ``hrl_torch`` itself only re-exports the version; a submodule importing it is no cycle
+def _graph(imports) -> dict[str, set[str]]:
+    # a package's ``__init__`` importing its own submodules is no cycle; nor is ``hrl_torch``
+    # (version and finder) imported from below
     return {
-        m: {t for t, _ in imports if t != m and t != "hrl_torch"}
-        for m, imports in _imports().items()
+        m: {t for t, _ in targets if t != m and t != "hrl_torch" and not m.startswith(t + ".")}
+        for m, targets in imports.items()
     }
 
 
+def test_every_import_goes_to_its_own_layer_or_below():
+    assert layer_violations(_imports()) == []
+
+
+def test_the_layer_test_fails_on_a_planted_upward_import(tmp_path):
+    for top, files in {
+        "hrl_torch": {"common/ops.py": "from hrl_torch.runs.cli import main\n", "runs/cli.py": ""},
+        "envs": {"grid.py": "from hrl_torch.learners.maxq import MaxQLearner\n"},
+        "agents": {"taxi.py": "def f():\n    from hrl_torch.runs.experiment import run\n"},
+    }.items():
+        for rel, text in files.items():
+            path = tmp_path / top / rel
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text)
+    (tmp_path / "hrl_torch" / "learners").mkdir()
+    (tmp_path / "hrl_torch" / "learners" / "maxq.py").write_text("")
+    (tmp_path / "hrl_torch" / "runs" / "experiment.py").write_text("")
+    found = layer_violations(_imports(tmp_path))
+    assert found == [
+        "hrl_torch.common.ops imports hrl_torch.runs.cli (a layer above)",
+        "envs.grid imports hrl_torch.learners.maxq (an env needs only hrl_torch.common and .env)",
+        "agents.taxi imports hrl_torch.runs.experiment (domains use hrl_torch.runs.domain, "
+        ".registry)",
+    ]
+
+
+def test_only_the_package_file_sits_at_the_top_of_hrl_torch():
+    assert sorted(p.name for p in (ROOT / "hrl_torch").glob("*.py")) == ["__init__.py"]
+    assert sorted(
+        p.name for p in (ROOT / "hrl_torch").iterdir() if p.is_dir() and p.name[0] != "_"
+    ) == sorted([*LAYERS])
+
+
 def test_no_import_cycle():
-    assert _cycle(_graph()) is None
+    assert _cycle(_graph(_imports())) is None
 
 
 def test_no_module_imports_another_modules_private_name():
@@ -77,30 +169,30 @@ def test_no_module_imports_another_modules_private_name():
 
 
 def test_the_training_loop_imports_nothing_multi_agent():
-    graph, seen, todo = _graph(), set(), ["hrl_torch.training.trainer"]
+    graph, seen, todo = _graph(_imports()), set(), ["hrl_torch.training.trainer"]
     while todo:
         m = todo.pop()
         if m not in seen:
             seen.add(m)
-            todo += graph[m]
+            todo += graph.get(m, ())
     assert not {m for m in seen if "multiagent" in m}, sorted(seen)
 
 
 def test_modules_and_classes_stay_small():
-    # the house rules (issue 23): no module over 600 lines, no class over 20 methods, a
-    # training loop under 350 lines
+    # the house rules (issue 23, issue 37): no file over 600 lines anywhere in the code, no class
+    # over 20 methods, a training loop under 350 lines
     long = {
         str(p.relative_to(ROOT)): n
-        for p in PACKAGE.rglob("*.py")
+        for p in _sources(ROOT).values()
         if (n := len(p.read_text().splitlines())) > 600
     }
     assert long == {}
     big = {}
-    for p in PACKAGE.rglob("*.py"):
+    for p in (ROOT / "hrl_torch").rglob("*.py"):
         for node in ast.walk(ast.parse(p.read_text())):
             if isinstance(node, ast.ClassDef):
                 n = sum(isinstance(b, ast.FunctionDef | ast.AsyncFunctionDef) for b in node.body)
                 if n > 20:
                     big[f"{p.relative_to(ROOT)}:{node.name}"] = n
     assert big == {}
-    assert len((PACKAGE / "trainer.py").read_text().splitlines()) <= 350
+    assert len((ROOT / "hrl_torch" / "training" / "trainer.py").read_text().splitlines()) <= 350

@@ -5,8 +5,9 @@ import pytest
 import torch
 
 from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
-from hrl_torch.execution.executor import Choice
-from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.execution.transitions import Choice
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy
 from hrl_torch.multiagent.cooperative import (

@@ -10,7 +10,8 @@ from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy, Linear
 from hrl_torch.modules.tables import TableBank
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 SEEDS = [3, 11, 42]
 

@@ -38,7 +38,8 @@ from hrl_torch.runs.population_grid import (
     train_grid,
     with_values,
 )
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 from tests.test_any_device import _tensors
 
 SEEDS = [0, 1, 2, 3, 4]

@@ -10,6 +10,7 @@ import agents  # noqa: F401  (registers the domains)
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.runs import registry
 from hrl_torch.runs.cli_parser import add_sweep_parser
+from hrl_torch.runs.domain import with_overrides
 from hrl_torch.runs.sweep import (
     INSTALL_HINT,
     configurations,
@@ -18,7 +19,6 @@ from hrl_torch.runs.sweep import (
     parse_grid,
     run_sweep,
     run_sweep_command,
-    with_overrides,
 )
 
 

@@ -11,11 +11,12 @@ import torch
 
 from hrl_torch.common.config import Make
 from hrl_torch.env.batched import BatchedEnv
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.training.config import TrainConfig
 
 LENGTH = 8
 LEFT, RIGHT = 0, 1

@@ -16,12 +16,13 @@ import torch
 
 from hrl_torch.common.config import Make
 from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import linear_epsilon
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
-from hrl_torch.runs.experiment import DomainSpec, algo_family
-from hrl_torch.training.trainer import TrainConfig
+from hrl_torch.runs.domain import DomainSpec, algo_family
+from hrl_torch.training.config import TrainConfig
 
 LENGTH = 7
 LEFT, RIGHT, PICK = 0, 1, 2

@@ -55,7 +55,8 @@ import torch
 
 from hrl_torch.analysis.chains import F64, FiniteModel
 from hrl_torch.analysis.hierarchy import Unrolled
-from hrl_torch.hierarchy.graph import GraphError, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 MAX_NODE_IRRELEVANCE = "max-node irrelevance"
 LEAF_IRRELEVANCE = "leaf irrelevance"

@@ -18,7 +18,8 @@ from hrl_torch.analysis.chains import (
     markov_chain_gain,
     rvi,
 )
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 
 class Unrolled:

@@ -19,7 +19,7 @@ import warnings
 
 import torch
 
-from hrl_torch.execution.executor import PRIMITIVE
+from hrl_torch.execution.transitions import PRIMITIVE
 from hrl_torch.hierarchy.graph import TaskGraph
 
 

@@ -19,7 +19,8 @@ from hrl_torch.analysis.chains import (
     table_rvi,
 )
 from hrl_torch.analysis.hierarchy import Unrolled, flatten_unrolled, instance_table, start_values
-from hrl_torch.hierarchy.graph import GraphError, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 
 @dataclass

@@ -21,7 +21,8 @@ from collections.abc import Callable, Sequence
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.hierarchy.graph import GraphError, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 FLOAT_FIELDS = ("reward", "duration")
 FLAG_FIELDS = ("terminated", "truncated", "is_init")

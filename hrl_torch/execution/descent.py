@@ -15,7 +15,8 @@ from dataclasses import replace
 import torch
 
 from hrl_torch.execution.transitions import Choice, SelectsRows, as_choice, is_kind
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 
 class Descent:

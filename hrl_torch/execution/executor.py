@@ -1,7 +1,7 @@
 """The batched Task-Stack executor (Section 3.2).
 
-For every env row the executor keeps a Task-Stack of ``D`` levels (``hrl_torch.execution.stack``):
-the instance at each level, the child it chose, the abstract state where that child started and the
+For every env row the executor keeps a Task-Stack of ``D`` levels (``execution.stack``): the
+instance at each level, the child it chose, the abstract state where that child started and the
 reward and time accumulated since. ``observe`` takes one env step: it accumulates rewards, pops
 every level that ended (a terminating subtask aborts everything it called) and emits the
 finished SMDP transitions as a TensorDict. ``act`` pushes children until a primitive is on top
@@ -10,10 +10,9 @@ stack: each call replaces ``self.stack`` by a new one.
 
 The transitions (a TensorDict ``[B]`` with ``learner``, ``batch[LEVEL] [B, D]`` and
 ``batch[PRIMITIVE] [B]``) are declared key by key, with shapes and dtypes, in
-``hrl_torch.execution.transitions`` (``LEVEL_KEYS``, ``PRIMITIVE_KEYS``); some keys are computed
-only when the executor's ``uses`` asks for them (``OPTIONAL``; a learner names the ones it reads in
-``Learner.uses``). ``Choice``, ``Policy`` and the policies' optional capabilities live there too
-(re-exported here).
+``execution.transitions`` (``LEVEL_KEYS``, ``PRIMITIVE_KEYS``); some keys are computed only when
+the executor's ``uses`` asks for them (``OPTIONAL``; a learner names the ones it reads in
+``Learner.uses``). ``Choice``, ``Policy`` and the policies' optional capabilities live there too.
 """
 
 from __future__ import annotations
@@ -39,7 +38,8 @@ from hrl_torch.execution.transitions import (  # noqa: F401  (LEVEL, PRIMITIVE, 
     as_choice,
     is_kind,
 )
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 
 
 class SubtaskTimeoutError(RuntimeError):

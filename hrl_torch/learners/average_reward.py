@@ -37,7 +37,7 @@ import torch
 from torch import nn
 
 from hrl_torch.common.ops import take_flat
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.three_part import ThreePartLearner

@@ -22,7 +22,7 @@ from hrl_torch.common.devices import MovesTensorAttrs, static_shapes
 from hrl_torch.common.ops import add_at, at_rows, lookup, take_flat
 from hrl_torch.common.per_learner import check_size
 from hrl_torch.common.rng import BatchRNG, LevelDraws
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE, Choice
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.validate import check_fraction, check_step_size
 from hrl_torch.modules.eval_plan import EvalPlan

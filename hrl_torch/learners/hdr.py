@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.common.ops import discount
-from hrl_torch.execution.executor import PRIMITIVE
+from hrl_torch.execution.transitions import PRIMITIVE
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.learners.three_part import ThreePartLearner
 from hrl_torch.modules.exploration import Schedule

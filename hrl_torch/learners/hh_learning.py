@@ -24,8 +24,9 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.common.ops import columns
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.average_reward import GainEstimate
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.modules.tables import TableBank

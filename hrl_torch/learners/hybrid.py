@@ -19,8 +19,9 @@ import torch
 from torch import nn
 
 from hrl_torch.common.rng import LevelDraws
-from hrl_torch.execution.executor import Choice
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import Choice
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg import HPGRLLearner
 from hrl_torch.learners.progress import EpisodeBins, Monitor  # noqa: F401  (re-exported)

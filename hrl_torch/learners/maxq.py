@@ -23,8 +23,9 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.common.ops import argmax_last, discount, entries, take_flat
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.modules.exploration import Schedule
 

@@ -46,8 +46,9 @@ from torch import nn
 
 from hrl_torch.common.ops import lookup
 from hrl_torch.common.rng import LevelDraws
-from hrl_torch.execution.executor import LEVEL, PRIMITIVE, Choice
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg_traces import apply_traces
 from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size

@@ -34,7 +34,7 @@ import torch
 
 from hrl_torch.common.ops import lookup
 from hrl_torch.common.per_learner import at_entries
-from hrl_torch.execution.executor import LEVEL
+from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended

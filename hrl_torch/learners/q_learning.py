@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.common.ops import discount, lookup
-from hrl_torch.execution.executor import LEVEL
+from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.hierarchy.graph import StepContext
 from hrl_torch.learners.base import TabularLearner, finished
 

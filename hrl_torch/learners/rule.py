@@ -17,8 +17,9 @@ import torch
 
 from hrl_torch.common.checkpoint import Stateful
 from hrl_torch.common.devices import attributes_of, move_attributes
-from hrl_torch.execution.executor import Choice
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import Choice
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
 
 Rule = Callable[[object], torch.Tensor]

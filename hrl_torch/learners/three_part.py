@@ -32,8 +32,9 @@ from __future__ import annotations
 import torch
 
 from hrl_torch.common.ops import argmax_last, columns, entries, take_flat
-from hrl_torch.execution.executor import LEVEL
-from hrl_torch.hierarchy.graph import GraphError, StepContext, TaskGraph
+from hrl_torch.execution.transitions import LEVEL
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.modules.exploration import Schedule
 

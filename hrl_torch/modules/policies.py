@@ -23,7 +23,8 @@ import math
 import torch
 
 from hrl_torch.common.ops import one_hot_mask
-from hrl_torch.hierarchy.graph import GraphError, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.modules.exploration import masked_argmax
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput
 from hrl_torch.modules.tiles import TileCoder

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.hierarchy.graph import GraphError
+from hrl_torch.hierarchy.subtask import GraphError
 
 
 class CommunicationLevel:

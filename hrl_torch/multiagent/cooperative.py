@@ -50,9 +50,10 @@ from tensordict import TensorDict
 
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.env.multiagent_env import agent_rows
-from hrl_torch.execution.executor import Choice, ExecutorConfig
-from hrl_torch.execution.transitions import PricesChoices, as_choice
-from hrl_torch.hierarchy.graph import GraphError, StepContext, Subtask, TaskGraph
+from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.execution.transitions import Choice, PricesChoices, as_choice
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Subtask
 from hrl_torch.learners.base import Learner
 from hrl_torch.modules.exploration import Exploration
 from hrl_torch.multiagent.broadcast import choose_in_order

@@ -353,7 +353,7 @@ def _parsed_settings(items: list[str]) -> dict:
 
 def _check_settings(spec, settings: dict) -> None:
     """``--set``: an unknown name, or a value the learner or exploration refuses, in one line."""
-    from hrl_torch.runs.experiment import with_overrides
+    from hrl_torch.runs.domain import with_overrides
 
     if not settings:
         return

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 from hrl_torch.common import devices
 from hrl_torch.common.sync_count import HostSyncCounter, place
-from hrl_torch.hierarchy.graph import GraphError
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.multiagent import broadcast
 from hrl_torch.training.cuda_graph import StepGraph
 from hrl_torch.training.evaluation import READ_EVERY

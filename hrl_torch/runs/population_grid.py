@@ -31,8 +31,8 @@ import numpy as np
 import torch
 
 from hrl_torch.common.per_learner import is_per_learner
-from hrl_torch.runs.domain import with_overrides
-from hrl_torch.runs.experiment import AlgoSpec, DomainSpec, RunOptions, build_trainer
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec, with_overrides
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 from hrl_torch.runs.sweep import write_table
 from hrl_torch.training.runlog import hparams_of, json_default, mean_ci95
 

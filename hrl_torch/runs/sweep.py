@@ -37,15 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from hrl_torch.common.config import parse_value, split_name
-from hrl_torch.runs.domain import TRAIN_KEYS, setting_names, with_overrides  # noqa: F401 (re-exported)
-from hrl_torch.runs.experiment import (
-    AlgoSpec,
-    DomainSpec,
-    RunOptions,
-    check_choice,
-    check_domain_env,
-    run_experiment,
-)
+from hrl_torch.runs.domain import TRAIN_KEYS, AlgoSpec, DomainSpec, setting_names, with_overrides  # noqa: F401 (re-exported)
+from hrl_torch.runs.experiment import RunOptions, check_choice, check_domain_env, run_experiment
 from hrl_torch.training.runlog import mean_ci95
 
 INSTALL_HINT = 'Ray is not installed: pip install -e ".[sweep]"'

@@ -18,7 +18,7 @@ import torch
 from hrl_torch.common.devices import DeferredCheck
 from hrl_torch.env.batched import BatchedEnv
 from hrl_torch.execution.executor import HierarchicalExecutor, SubtaskTimeoutError, bad_step_error
-from hrl_torch.hierarchy.graph import GraphError
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.pg import HPGRLLearner
 
 __all__ = ["DeferredCheck", "defer_checks", "defer_reads", "deferred_meanwhile", "raise_pending"]

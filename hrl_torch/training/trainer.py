@@ -4,11 +4,9 @@ One ``Trainer`` trains a population of ``P`` learners (one per seed) on ``P * E`
 counts are *env steps per learner* (the ``E`` rows of a learner each add one per batched step);
 exploration and step-size schedules read that count.
 
-The loop calls the collaborators it is given: an agent factory (``hrl_torch.training.agent``), an
-evaluator (``hrl_torch.training.evaluation``), a run log (``hrl_torch.training.runlog``) and the
-training metrics (``hrl_torch.training.metrics``); it keeps its state with a
-``hrl_torch.common.checkpoint.Checkpointer`` and stops cleanly on a signal
-(``hrl_torch.common.signals``).
+The loop calls the collaborators it is given: an agent factory (``agent``), an evaluator
+(``evaluation``), a run log (``runlog``) and the training metrics (``metrics``); it keeps its
+state with a ``common.checkpoint.Checkpointer`` and stops cleanly on a signal (``common.signals``).
 """
 
 from __future__ import annotations
@@ -27,17 +25,13 @@ from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.learners.base import Learner
 from hrl_torch.modules.exploration import Exploration, Greedy
+from hrl_torch.training import metrics
 from hrl_torch.training.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.training.config import TrainConfig, TrainResult
 from hrl_torch.training.cuda_graph import step_for
 from hrl_torch.training.deferred import defer_checks, raise_pending
 from hrl_torch.training.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
-from hrl_torch.training.metrics import (
-    EpisodeTracker,
-    per_seed,
-    reset_subtask_counters,
-    subtask_metrics,
-)
+from hrl_torch.training.metrics import EpisodeTracker
 from hrl_torch.training.runlog import RunLogger, hparams_of
 from hrl_torch.training.steps import CollectedSteps, DirectSteps
 
@@ -286,8 +280,8 @@ class Trainer:
 
     # ------------------------------------------------------------------ logging
     def _per_seed(self, counts: torch.Tensor) -> torch.Tensor:
-        """Counters per table set summed per seed (``hrl_torch.training.metrics.per_seed``)."""
-        return per_seed(counts, self.P)
+        """Counters per table set summed per seed (``metrics.per_seed``)."""
+        return metrics.per_seed(counts, self.P)
 
     def _log_training(self) -> None:
         if self.leaf_monitor is not None:
@@ -300,11 +294,11 @@ class Trainer:
         scalars["perf/env_steps_per_s"] = [
             self.step * self.P / max(self.counters.train_seconds, 1e-9)
         ] * self.P
-        skip = self.executor_config.on_bad_step == "skip"
-        subtasks, calls = subtask_metrics(self.graph, self.executor, self.learner, self.P, skip)
+        skip, graph, P = self.executor_config.on_bad_step == "skip", self.graph, self.P
+        subtasks, calls = metrics.subtask_metrics(graph, self.executor, self.learner, P, skip)
         scalars.update(subtasks)
         scalars.update(self.agents.training_metrics(self.graph, calls))
-        reset_subtask_counters(self.executor, self.learner)
+        metrics.reset_subtask_counters(self.executor, self.learner)
         self.logger.log(self.step, scalars)
 
     # ------------------------------------------------------------------ checkpoints

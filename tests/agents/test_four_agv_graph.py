@@ -3,17 +3,19 @@ import torch
 from tensordict import TensorDict
 
 from agents.four_agv import (
-    DISPATCH_RULES,
     NAV_TARGETS,
     ROOT_STATES,
-    FirstComeFirstServe,
-    HighestQueueFirst,
-    NearestStationFirst,
     da_states,
     dm_states,
     flat_graph,
     four_agv_hierarchy,
     job_available,
+)
+from agents.four_agv_rules import (
+    DISPATCH_RULES,
+    FirstComeFirstServe,
+    HighestQueueFirst,
+    NearestStationFirst,
 )
 from envs.four_agv import (
     BAYS,

@@ -6,7 +6,8 @@ import torch
 from tensordict import TensorDict
 
 from agents import four_agv, four_agv_text
-from agents.four_agv import DISPATCH_RULES, FirstComeFirstServe, da_states, dm_states
+from agents.four_agv import da_states, dm_states
+from agents.four_agv_rules import DISPATCH_RULES, FirstComeFirstServe
 from agents.four_agv_text import (
     ROOT_STATES,
     PerAGVRule,

@@ -10,7 +10,6 @@ from agents.ship import (
     _SIN,
     DIAGONAL,
     DIRECTION_NODES,
-    DOMAIN,
     LOCAL_GOAL,
     LOCAL_START,
     LOW_LEVEL_GUARD,
@@ -25,18 +24,20 @@ from agents.ship import (
     internal_reward,
     local_failure,
     local_success,
-    make_hybrid,
     orientation_shaping,
     ship_hierarchy,
     to_local,
 )
+from agents.ship_domain import DOMAIN
+from agents.ship_learners import make_hybrid
 from envs.ship import ShipSteeringEnv, wrap_degrees
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.modules.exploration import EpsilonGreedy
 from hrl_torch.runs.cli import main as cli_main
 from hrl_torch.training.agent import HierarchicalAgent
 from hrl_torch.training.collector import collect
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 
 def _states(n, seed=0):

@@ -6,7 +6,8 @@ from dataclasses import replace
 import pytest
 import torch
 
-from agents.ship import DOMAIN, LOCAL_GOAL, LOCAL_START, SUBTASK_NAMES, ship_hierarchy
+from agents.ship import LOCAL_GOAL, LOCAL_START, SUBTASK_NAMES, ship_hierarchy
+from agents.ship_domain import DOMAIN
 from agents.ship_text import (
     TEXT,
     Harmonic,
@@ -196,7 +197,7 @@ def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
 
 
 def test_low_level_success_counts_the_executions_that_ended_on_their_own():
-    from agents.ship import ShipMonitor
+    from agents.ship_learners import ShipMonitor
 
     spec = DOMAIN.algos["hybrid-text"]
     graph = spec.make_graph()

@@ -4,7 +4,8 @@ from tensordict import TensorDict
 from agents.trash import COLLECT_STATES, ROOT_STATES, U1, trash_com_hierarchy, trash_hierarchy
 from envs.trash import CANS, DUMP, N_ACTIONS, PUT, WAIT, TrashEnv
 from hrl_torch.common.rng import BatchRNG
-from hrl_torch.execution.executor import LEVEL, ExecutorConfig, HierarchicalExecutor
+from hrl_torch.execution.executor import ExecutorConfig, HierarchicalExecutor
+from hrl_torch.execution.transitions import LEVEL
 
 torch.set_num_threads(1)
 

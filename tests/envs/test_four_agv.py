@@ -3,7 +3,7 @@ import copy
 import pytest
 import torch
 
-from agents.four_agv import FirstComeFirstServe
+from agents.four_agv_rules import FirstComeFirstServe
 from envs.four_agv import (
     BAYS,
     DROP_OFF,

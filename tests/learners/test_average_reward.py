@@ -8,7 +8,8 @@ from agents.small_agv import flat_graph, small_agv_hierarchy
 from envs.agv_small import SmallAGVEnv
 from hrl_torch.env.batched import BatchedEnv
 from hrl_torch.execution.executor import ExecutorConfig
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import (
     GainEstimate,
     HARLearner,
@@ -20,7 +21,8 @@ from hrl_torch.learners import (
 from hrl_torch.learners.three_part import three_part_targets
 from hrl_torch.modules.exploration import Constant, EpsilonGreedy
 from hrl_torch.modules.tables import TableBank
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 
 HIERARCHICAL = {
     "har": lambda g, p, ct: HARLearner(g, p, 0.3, all_states=True, continuous=ct),

@@ -12,7 +12,8 @@ them.
 
 import torch
 
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import HARLearner, HDRLearner, MaxQLearner, RARLearner, SMDPQLearner
 from tests.learners.test_q_lambda_and_hh_exact import chain, run
 

@@ -9,11 +9,13 @@ import torch
 
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.execution.executor import HierarchicalExecutor
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig, PGPolicy
 from hrl_torch.modules.exploration import Greedy
 from hrl_torch.training.agent import with_values
-from hrl_torch.training.trainer import TrainConfig, Trainer
+from hrl_torch.training.config import TrainConfig
+from hrl_torch.training.trainer import Trainer
 from tests.helpers import TableEnv
 
 # a 5-state corridor: a0 moves right, a1 moves left (0 stays); reaching 4 ends the episode

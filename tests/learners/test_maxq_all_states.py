@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from hrl_torch.execution.executor import ExecutorConfig, HierarchicalExecutor
-from hrl_torch.hierarchy.graph import GraphError, Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.training.agent import with_values
 from tests.learners.test_hand_computed_targets import (

@@ -3,7 +3,8 @@
 import torch
 
 from hrl_torch.execution.executor import HierarchicalExecutor
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.training.agent import with_values
 from tests.helpers import TableEnv

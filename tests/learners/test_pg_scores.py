@@ -22,7 +22,8 @@ from tensordict import TensorDict
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.env.batched import BatchedEnv
 from hrl_torch.execution.executor import HierarchicalExecutor
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners.pg import ActorCriticLearner, HPGRLLearner, PGConfig, PGPolicy
 from hrl_torch.modules.policies import squash, unsquash
 from hrl_torch.modules.tiles import TileCoder

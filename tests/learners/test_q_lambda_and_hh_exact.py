@@ -10,7 +10,8 @@ then Go3 from 2 (one step).
 import torch
 
 from hrl_torch.execution.executor import HierarchicalExecutor
-from hrl_torch.hierarchy.graph import Primitive, Subtask, TaskGraph
+from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import HDRLearner, HHLearner
 from hrl_torch.learners.q_lambda import QLambdaLearner
 from hrl_torch.training.agent import with_values

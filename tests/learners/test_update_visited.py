@@ -8,7 +8,7 @@ states untouched.
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.execution.executor import LEVEL
+from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.learners import HDRLearner
 from tests.learners.test_q_lambda_and_hh_exact import chain
 
