@@ -148,3 +148,23 @@ def moved_attribute(package: str, name: str):
     value = getattr(module, name)
     setattr(sys.modules[package], name, value)
     return value
+
+
+def trainer_agent_factory(agent_factory, multiagent, env):
+    """0.1's ``Trainer(..., multiagent=config)`` as today's ``agent_factory``, with its warning.
+
+    The one place below ``hrl_torch.multiagent`` that names it, by import string: a shim that
+    goes with 0.1's form in 0.3.0.
+    """
+    if multiagent is None:
+        return agent_factory
+    if agent_factory is not None:
+        raise TypeError("Trainer takes agent_factory= or 0.1's multiagent=, not both")
+    warnings.warn(
+        "Trainer(multiagent=config) is 0.1's: pass agent_factory=MultiAgentFactory(env.n_agents, "
+        f"config) (hrl_torch.multiagent.factory); 0.1's form goes in {REMOVED_IN}",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    factory = importlib.import_module("hrl_torch.multiagent.factory").MultiAgentFactory
+    return factory(env.n_agents, multiagent)

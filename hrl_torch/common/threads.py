@@ -27,7 +27,7 @@ def warn_cpu_threads(device) -> None:
 
 def _first_caller_outside_package() -> int:
     """``stacklevel`` for a warning raised by our caller: the first frame outside hrl_torch."""
-    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep  # hrl_torch/
     frame, level = sys._getframe(1), 1  # level 1: the function that calls warnings.warn
     while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
         frame, level = frame.f_back, level + 1

@@ -1,1 +1,1 @@
-"""Layer 3, the Task-Stack and its pushes and pops, and the SMDP transition schema."""
+"""Layer 3: the Task-Stack, its pushes and pops, and the SMDP transition schema."""

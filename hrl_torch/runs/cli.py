@@ -65,7 +65,7 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
 
 def _installed_repository() -> str | None:
     """The repository root this hrl-torch runs from, if it holds the built-in ``agents``."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]  # hrl_torch/runs/cli.py
     return str(root) if (root / "agents" / "__init__.py").is_file() else None
 
 

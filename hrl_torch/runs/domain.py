@@ -10,6 +10,8 @@ budget), the learner and exploration as data (``hrl_torch.common.config.Make``) 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, is_dataclass
 from typing import TYPE_CHECKING
@@ -199,6 +201,55 @@ def algo_family(**shared) -> Callable[..., AlgoSpec]:
 
     return spec
 
+
+#: 0.1's ``AlgoSpec`` fields in their order (``make_learner``, ``make_exploration``, no ``pg``)
+ALGO_SPEC_0_1 = (
+    "make_graph",
+    "make_learner",
+    "make_exploration",
+    "train",
+    "envs_per_learner",
+    "executor",
+    "description",
+    "multiagent",
+    "env_options",
+)
+_RENAMED_0_1 = {"make_learner": "learner", "make_exploration": "exploration"}
+
+
+def algo_spec_arguments(args: tuple, kwargs: dict) -> tuple[tuple, dict]:
+    """0.1's ``AlgoSpec`` arguments as today's, with a DeprecationWarning; others unchanged.
+
+    0.1 took ``(make_graph, make_learner, make_exploration, train, ...)``; 0.2 renamed the two
+    makers ``learner`` and ``exploration`` and put ``pg`` before ``train``. A 0.1 call is one
+    whose fourth positional argument is a ``TrainConfig`` or that names an old field.
+    """
+    old_order = len(args) > 3 and isinstance(args[3], TrainConfig)
+    old_names = sorted(set(kwargs) & set(_RENAMED_0_1))
+    if not (old_order or old_names):
+        return args, kwargs
+    warnings.warn(
+        "AlgoSpec(make_graph, make_learner, make_exploration, train, ...) is 0.1's: name the "
+        "fields learner= and exploration= (pg= comes before train=); 0.1's form goes in 0.3.0",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    if len(args) > len(ALGO_SPEC_0_1):
+        raise TypeError(f"AlgoSpec takes at most {len(ALGO_SPEC_0_1)} positional arguments")
+    given = {**dict(zip(ALGO_SPEC_0_1, args, strict=False)), **kwargs} if old_order else kwargs
+    return (), {_RENAMED_0_1.get(key, key): value for key, value in given.items()}
+
+
+_dataclass_init = AlgoSpec.__init__
+
+
+@functools.wraps(_dataclass_init)  # (its signature is the dataclass's)
+def _init_accepting_0_1(self, *args, **kwargs) -> None:
+    args, kwargs = algo_spec_arguments(args, kwargs)
+    _dataclass_init(self, *args, **kwargs)
+
+
+AlgoSpec.__init__ = _init_accepting_0_1
 
 @dataclass
 class DomainSpec:

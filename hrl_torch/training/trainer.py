@@ -18,6 +18,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from hrl_torch.analysis.monitor import LeafRewardMonitor
+from hrl_torch.common import compat
 from hrl_torch.common.checkpoint import Checkpointer
 from hrl_torch.common.signals import StopOnSignal
 from hrl_torch.common.threads import warn_cpu_threads
@@ -28,6 +29,7 @@ from hrl_torch.modules.exploration import Exploration, Greedy
 from hrl_torch.training import metrics
 from hrl_torch.training.agent import AgentFactory, HierarchicalAgent, checked_factory
 from hrl_torch.training.config import TrainConfig, TrainResult
+from hrl_torch.training.counters import LoopCounters
 from hrl_torch.training.cuda_graph import step_for
 from hrl_torch.training.deferred import defer_checks, raise_pending
 from hrl_torch.training.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
@@ -50,15 +52,15 @@ class Trainer:
         eval_env: batched env with ``P * eval_episodes`` rows for greedy evaluation.
         executor_config: guard and all-states options.
         logger: where metrics go (``None``: nowhere).
-        evaluator: the greedy evaluation (``hrl_torch.training.evaluation.Evaluator``; default the
-            episodic one), e.g. a ``hrl_torch.training.continuing.ThroughputEvaluator`` for
-            continuing tasks; it also sees every training step (``observe``) and adds its metrics at
-            each log (``flush``).
+        evaluator: the greedy evaluation (``evaluation.Evaluator``; default the episodic one),
+            e.g. a ``continuing.ThroughputEvaluator`` for continuing tasks; it also sees every
+            training step (``observe``) and adds its metrics at each log (``flush``).
         collector: step the env through a TorchRL ``Collector`` and learn from its frames
-            (``hrl_torch.training.collector``); the same tables as the direct loop.
-        agent_factory: builds the agents (``hrl_torch.training.agent.AgentFactory``; default one
-        agent
-            per row; a multi-agent env needs ``hrl_torch.multiagent.factory.MultiAgentFactory``).
+            (``training.collector``); the same tables as the direct loop.
+        agent_factory: builds the agents (``agent.AgentFactory``; default one agent per row; a
+            multi-agent env needs ``hrl_torch.multiagent.factory.MultiAgentFactory``).
+        multiagent: 0.1's way to say ``agent_factory=MultiAgentFactory(n_agents, multiagent)``
+            (deprecated; goes in 0.3.0).
     """
 
     graph_backend: str | None = None  #: ``"trace"``: ``StepGraph``'s trace backend (any device)
@@ -76,7 +78,9 @@ class Trainer:
         evaluator: Evaluator | None = None,
         collector: bool = False,
         agent_factory: AgentFactory | None = None,
+        multiagent=None,
     ) -> None:
+        agent_factory = compat.trainer_agent_factory(agent_factory, multiagent, env)
         self.env, self.graph, self.learner, self.exploration = env, graph, learner, exploration
         warn_cpu_threads(env.device)
         self.collector = collector
@@ -317,34 +321,3 @@ class Trainer:
     def load(self, path) -> None:
         """Continue from a checkpoint written by ``save``."""
         self.checkpointer.load(path)
-
-
-class LoopCounters:
-    """The loop's clock and counters: what a checkpoint keeps of the loop itself.
-
-    ``step`` is the agent's clock (env steps per learner); ``train_seconds`` the time spent
-    stepping; ``real_steps [P]`` the env steps each learner really took (rows being auto-reset
-    take none); ``next`` the steps at which logging, evaluation and checkpointing are due.
-    """
-
-    def __init__(self, agent, n_learners: int, eval_every: int, device) -> None:
-        self.agent = agent
-        self.train_seconds = 0.0
-        self.real_steps = torch.zeros(n_learners, dtype=torch.float64, device=device)
-        self.next = {"log": 0, "eval": eval_every, "ckpt": 0}
-
-    def state_dict(self) -> dict:
-        """The counters, in a checkpoint's keys."""
-        return {
-            "step": self.agent.clock,
-            "train_seconds": self.train_seconds,
-            "real_steps": self.real_steps.clone(),
-            "next": dict(self.next),
-        }
-
-    def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict``."""
-        self.agent.clock = int(state["step"])
-        self.train_seconds = float(state["train_seconds"])
-        self.real_steps = state["real_steps"].clone()
-        self.next = {k: int(v) for k, v in state["next"].items()}
