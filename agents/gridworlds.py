@@ -7,10 +7,9 @@ from __future__ import annotations
 
 from agents.taxi import epsilon_first_third, flat_graph
 from envs.grid import TableEnv, optimal_values
-from hrl_torch.common.config import Make
 from hrl_torch.execution.executor import ExecutorConfig
-from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.runs.algorithms import Tasks
+from hrl_torch.runs.domain import DomainSpec
 from hrl_torch.training.config import TrainConfig
 
 EVAL_SEED = 1_000_003
@@ -39,22 +38,6 @@ def optimal_eval_return(
     return float(value[env_class([seed], episodes).reset()["observation"]].mean())
 
 
-def grid_algo(make_graph, learner, description: str, threshold: float, **options) -> AlgoSpec:
-    """One algorithm of a gridworld.
-
-    100,000 steps, 64 envs per seed, epsilon 1 -> 0.05 over the first third, 20 evaluations.
-    """
-    return AlgoSpec(
-        make_graph=make_graph,
-        learner=learner,
-        exploration=epsilon_first_third,
-        train=TrainConfig(steps=STEPS, eval_every=STEPS // 20, threshold=threshold),
-        envs_per_learner=64,
-        description=description,
-        **options,
-    )
-
-
 def gridworld_domain(
     name: str,
     description: str,
@@ -68,7 +51,8 @@ def gridworld_domain(
 ) -> DomainSpec:
     """A gridworld domain with its measured initial values.
 
-    MAXQ-Q with all-states updating on ``hierarchy``, flat Q-learning over the env's states.
+    Every registered tabular algorithm; MAXQ-Q with all-states updating on ``hierarchy``, flat
+    Q-learning over the env's states from their own measured initial value ``q_init``.
     """
     n_states, n_actions = env_class.transition_tables()[0].shape
     return DomainSpec(
@@ -77,19 +61,29 @@ def gridworld_domain(
         make_env=env_factory(env_class),
         eval_seed=EVAL_SEED,
         reference={f"optimal {optimal:.2f}": optimal, f"threshold {threshold:.2f}": threshold},
-        algos={
-            "maxq-q": grid_algo(
-                hierarchy,
-                Make(MaxQLearner, alpha=ALPHA, gamma=1.0, all_states=True, init=maxq_init),
-                f"MAXQ-Q (all-states updating) on {hierarchy_text}",
-                threshold,
-                executor=ExecutorConfig(record_visited=VISITED),
-            ),
-            "q": grid_algo(
-                lambda: env_class.tabulate(flat_graph(n_states, n_actions)),
-                Make(SMDPQLearner, alpha=ALPHA, gamma=1.0, init=q_init),
-                f"flat Q-learning over the {n_states} states",
-                threshold,
-            ),
-        },
+        # every registered tabular algorithm: 100,000 steps, 64 envs per seed, epsilon 1 -> 0.05
+        # over the first third, 20 evaluations
+        tasks=Tasks(
+            graphs={
+                "hierarchy": hierarchy,
+                "flat": lambda: env_class.tabulate(flat_graph(n_states, n_actions)),
+            },
+            offers=frozenset({"tabular", "single-agent", "episodic"}),
+            exploration=epsilon_first_third,
+            train=TrainConfig(steps=STEPS, eval_every=STEPS // 20, threshold=threshold),
+            envs_per_learner=64,
+            learner={"alpha": ALPHA, "init": maxq_init},
+            per_algorithm={
+                "maxq-q": {
+                    "learner": {"all_states": True},
+                    "executor": ExecutorConfig(record_visited=VISITED),
+                    "description": f"MAXQ-Q (all-states updating) on {hierarchy_text}",
+                },
+                "smdp-q": {"description": f"SMDP Q-learning at every subtask of {hierarchy_text}"},
+                "q": {
+                    "learner": {"init": q_init},
+                    "description": f"flat Q-learning over the {n_states} states",
+                },
+            },
+        ),
     )

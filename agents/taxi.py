@@ -31,12 +31,11 @@ import torch
 from tensordict import TensorDict
 
 from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
-from hrl_torch.common.config import Make
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
-from hrl_torch.learners import MaxQLearner, SMDPQLearner
 from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.runs.domain import AlgoSpec, DomainSpec
+from hrl_torch.runs.algorithms import Tasks
+from hrl_torch.runs.domain import DomainSpec
 from hrl_torch.training.config import TrainConfig
 
 IN_TAXI = 4
@@ -167,30 +166,23 @@ DOMAIN = DomainSpec(
     make_env=make_env,
     backends=("torch", "gymnasium"),
     reference={"optimal expected return 7.93": 7.93, "threshold 7.5": 7.5},
-    algos={
-        "maxq-q": AlgoSpec(
-            make_graph=taxi_hierarchy,
-            learner=Make(MaxQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
-            exploration=epsilon_first_third,
-            train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
-            envs_per_learner=256,
-            description="MAXQ-Q (Dietterich 2000) on the MAXQ task graph",
-        ),
-        "smdp-q": AlgoSpec(
-            make_graph=taxi_hierarchy,
-            learner=Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
-            exploration=epsilon_first_third,
-            train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
-            envs_per_learner=256,
-            description="SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph",
-        ),
-        "q": AlgoSpec(
-            make_graph=lambda: tabulated(flat_graph()),
-            learner=Make(SMDPQLearner, alpha=0.5, gamma=1.0, init=PESSIMISTIC_INIT),
-            exploration=epsilon_first_third,
-            train=TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
-            envs_per_learner=256,
-            description="flat Q-learning over the 500 states",
-        ),
-    },
+    # every registered tabular algorithm (maxq-q, smdp-q, q, a plugin's ...) with these settings
+    tasks=Tasks(
+        graphs={"hierarchy": taxi_hierarchy, "flat": lambda: tabulated(flat_graph())},
+        offers=frozenset({"tabular", "single-agent", "episodic"}),
+        exploration=epsilon_first_third,
+        train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
+        envs_per_learner=256,
+        learner={"init": PESSIMISTIC_INIT},
+        per_algorithm={
+            "maxq-q": {"description": "MAXQ-Q (Dietterich 2000) on the MAXQ task graph"},
+            "smdp-q": {
+                "description": "SMDP Q-learning at every subtask (HSMQ) on the MAXQ task graph"
+            },
+            "q": {
+                "train": TrainConfig(steps=200_000, eval_every=4_096, threshold=7.5),
+                "description": "flat Q-learning over the 500 states",
+            },
+        },
+    ),
 )

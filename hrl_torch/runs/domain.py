@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from hrl_torch.common import config
 from hrl_torch.common.config import Make
 from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.runs import algorithms
 from hrl_torch.training.config import TrainConfig
 
 if TYPE_CHECKING:
@@ -269,14 +270,43 @@ class DomainSpec:
         make_eval_env: the evaluation env's factory when it differs from the training env's
             (e.g. training restarts a continuing task now and then to see every start
             state; evaluation measures the long run without restarts). Default: ``make_env``.
+        tasks: what the domain offers the registered algorithms (``runs.algorithms.Tasks``):
+            ``algos`` then also holds every compatible registered algorithm's spec, and the
+            ones given in ``algos`` are the domain's own (a name that is a registered
+            algorithm's must use its learner: ``--algo NAME`` is one family everywhere).
     """
 
     name: str
     make_env: EnvFactory
-    algos: dict[str, AlgoSpec]
+    algos: dict[str, AlgoSpec] = field(default_factory=dict)
     backends: tuple[str, ...] = ("torch",)
     eval_seed: int = 1_000_003
     reference: dict[str, float] = field(default_factory=dict)
     description: str = ""
     make_evaluator: Callable[[TrainConfig], object] | None = None
     make_eval_env: EnvFactory | None = None
+    tasks: algorithms.Tasks | None = None
+    own_algos: frozenset[str] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        registered = algorithms.algorithms()
+        for name, spec in self.algos.items():
+            family = registered.get(name)
+            if family is not None and isinstance(spec.learner, Make):
+                if spec.learner.target is not family.learner:
+                    raise ValueError(
+                        f"domain {self.name!r}: algorithm {name!r} is registered as "
+                        f"{family.learner.__name__}, not {spec.learner.target.__name__}; "
+                        "give this learner another name"
+                    )
+        self.own_algos = frozenset(getattr(self, "own_algos", None) or self.algos)
+        if self.tasks is not None:
+            derived = algorithms.fields_for(self.tasks)
+            own = {name: self.algos[name] for name in self.own_algos}
+            self.algos = {**{n: AlgoSpec(**f) for n, f in derived.items()}, **own}
+
+    def with_registered_algorithms(self) -> DomainSpec:
+        """This domain with the algorithms registered since it was made (plugins) added."""
+        if self.tasks is None or not set(algorithms.algorithms()) - set(self.algos):
+            return self
+        return dataclasses.replace(self, algos={n: self.algos[n] for n in self.own_algos})

@@ -6,7 +6,9 @@
   ``hrl_torch.domains`` (``corridor = "hrl_corridor:DOMAIN"`` in its ``pyproject.toml``);
   ``load_plugins`` registers them.
 - ``load_module("my_domains")`` imports a module and registers every ``DomainSpec`` it defines
-  as ``DOMAIN`` or in ``DOMAINS`` (or that it registers itself on import).
+  as ``DOMAIN`` or in ``DOMAINS`` (or that it registers itself on import). A module may register
+  algorithms instead (``hrl_torch.runs.algorithms.register_algorithm``): they then run on every
+  compatible domain; installed plugins declare such modules in the group ``hrl_torch.algorithms``.
 """
 
 from __future__ import annotations
@@ -15,12 +17,15 @@ import importlib
 import sys
 from importlib.metadata import entry_points
 
+from hrl_torch.runs import algorithms
 from hrl_torch.runs.domain import DomainSpec
 
 ENTRY_POINT_GROUP = "hrl_torch.domains"
+ALGORITHM_GROUP = "hrl_torch.algorithms"  # modules that register algorithms on import
 
 _DOMAINS: dict[str, str | DomainSpec] = {}
 _SOURCES: dict[str, str] = {}
+_ALGORITHM_MODULES: set[str] = set()  # loaded modules that registered algorithms
 
 
 def register(name: str, entry: str | DomainSpec, source: str = "built-in") -> None:
@@ -45,6 +50,8 @@ def register(name: str, entry: str | DomainSpec, source: str = "built-in") -> No
 def load_plugins() -> list[str]:
     """Register the domains of installed plugins (group ``hrl_torch.domains``); their names."""
     found = []
+    for ep in entry_points(group=ALGORITHM_GROUP):
+        importlib.import_module(ep.value.split(":")[0])
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         dist = ep.dist.name if ep.dist is not None else "?"
         register(ep.name, ep.value, source=f"plugin {dist}")
@@ -58,7 +65,7 @@ def load_module(module: str) -> list[str]:
     Raises ``ModuleNotFoundError`` for a module that cannot be imported and ``ValueError`` for
     one that defines and registers no domain.
     """
-    before = set(_DOMAINS)
+    before, algorithms_before = set(_DOMAINS), set(algorithms.algorithms())
     try:
         mod = importlib.import_module(module)
     except ModuleNotFoundError as err:
@@ -74,8 +81,13 @@ def load_module(module: str) -> list[str]:
     for spec in specs:
         register(spec.name, spec, source=f"module {module}")
     added = sorted(set(_DOMAINS) - before)
-    if not added and not specs:
-        raise ValueError(f"module {module!r} defines no DOMAIN or DOMAINS (DomainSpec)")
+    if set(algorithms.algorithms()) != algorithms_before:
+        _ALGORITHM_MODULES.add(module)
+    if not added and not specs and module not in _ALGORITHM_MODULES:
+        raise ValueError(
+            f"module {module!r} defines no DOMAIN or DOMAINS (DomainSpec) and registers no "
+            "algorithm"
+        )
     return added
 
 
@@ -95,7 +107,7 @@ def get(name: str) -> DomainSpec:
         raise KeyError(f"unknown domain {name!r}; registered: {names()}")
     entry = _DOMAINS[name]
     if isinstance(entry, DomainSpec):
-        return entry
+        return entry.with_registered_algorithms()
     module, attr = entry.split(":")
     try:
         found = vars(importlib.import_module(module))
@@ -108,7 +120,7 @@ def get(name: str) -> DomainSpec:
         ) from err
     if not isinstance(spec, DomainSpec):
         raise ValueError(f"domain {name!r} ({_SOURCES[name]}): {entry} is not a DomainSpec")
-    return spec
+    return spec.with_registered_algorithms()
 
 
 def _same(a: str | DomainSpec, b: str | DomainSpec) -> bool:
