@@ -116,8 +116,8 @@ HPGRL_PG = PGConfig(alpha=HPGRL_ALPHA, trace_len=200)
 
 
 DOMAIN = DomainSpec(
-    name="taxi-fuel",
-    description="taxi with fuel (Dietterich 1998; Section 5.2.1)",
+    name="taxi-fuel-earlier",
+    description="taxi with fuel, the reading before Section 5.2.1's (kept for comparison)",
     make_env=make_env,
     algos={
         "hpgrl": AlgoSpec(

@@ -1,12 +1,12 @@
-"""Taxi-fuel as Section 5.2.1 sets it (``taxi-fuel-text``): 8,750 states, average reward per step.
+"""Taxi-fuel as Section 5.2.1 sets it (``taxi-fuel``): 8,750 states, average reward per step.
 
-Beside ``taxi-fuel`` (``agents.taxi_fuel``), three things follow the text:
+Beside ``taxi-fuel-earlier`` (``agents.taxi_fuel``), three things follow the text:
 
 - the env ``envs.taxi_fuel_text``: the text's 8,750 states, no time limit, Fillup away from F
   is not penalised;
 - the root sees the whole state (taxi location, passenger, destination, fuel: the 8,750
   states). The text's hierarchy is Dietterich's (1998) decomposition (footnote 4), and it names
-  no state abstraction; a root without the taxi location (``taxi-fuel``'s 260 states) cannot
+  no state abstraction; a root without the taxi location (``taxi-fuel-earlier``'s 260 states) cannot
   tell how far F and the passenger are, so it cannot decide when to refuel. The nodes below
   the root keep Dietterich's abstractions (the fuel never changes what a shortest route is);
 - the measure is the average reward per step over the run (the text's "average reward per
@@ -16,9 +16,9 @@ Beside ``taxi-fuel`` (``agents.taxi_fuel``), three things follow the text:
   no reward and no duration, so an episode's end costs no time.
 
 Algorithms: ``hpgrl`` (Algorithm 3 at every node, one softmax parameter per (state, child)),
-``maxq-q`` and flat ``q`` over the 8,750 states, configured as on ``taxi-fuel`` except MAXQ-Q's
-step size and final epsilon (``MAXQ_ALPHA``, ``MAXQ_EXPLORATION``: chosen by ``hrl-torch sweep``
-on this domain, docs/reproduction.md).
+``maxq-q`` and flat ``q`` over the 8,750 states, configured as on ``taxi-fuel-earlier`` except
+MAXQ-Q's step size and final epsilon (``MAXQ_ALPHA``, ``MAXQ_EXPLORATION``: chosen by ``hrl-torch
+sweep`` on this domain, docs/reproduction.md).
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ N_ACTIONS = 7
 #: greedy evaluation: steps per eval row (every row runs episodes one after the other)
 EVAL_HORIZON = 500
 EVAL_ROWS = 32
-#: MAXQ-Q's step size here (a sweep of 0.01-1.0 on 3 seeds: 0.03 best; ``taxi-fuel`` uses 0.5)
+#: MAXQ-Q's step size here (a sweep of 0.01-1.0 on 3 seeds: 0.03 best; ``taxi-fuel-earlier``
+#: uses 0.5)
 MAXQ_ALPHA = 0.03
 #: MAXQ-Q's epsilon, 1 -> 0.01 over the first third of the budget (the sweep: 0.01 beat 0.05)
 MAXQ_EXPLORATION = linear_epsilon(1.0, 0.01, Fraction(1, 3))
@@ -152,8 +153,8 @@ def _spec(make_graph, learner, exploration, steps: int, description: str, pg=Non
 
 
 DOMAIN = DomainSpec(
-    name="taxi-fuel-text",
-    description="taxi-fuel as Section 5.2.1 sets it: 8,750 states, average reward per step",
+    name="taxi-fuel",
+    description="taxi with fuel as Section 5.2.1 sets it: 8,750 states, average reward per step",
     make_env=make_env,
     make_evaluator=reward_per_step,
     algos={

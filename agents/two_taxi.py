@@ -23,17 +23,17 @@ communication level)::
 
 Two tasks are registered, with the same learners (``hrl-torch list``):
 
-- ``two-taxi-text`` and ``two-taxi-text-station``, the task as Section 6.6 describes it:
+- ``two-taxi`` and ``two-taxi-station``, the task as Section 6.6 describes it:
   ``Get_s`` starts only where ``s`` has a passenger and ends with a pickup or *at* ``s`` with
   nobody there: "the first taxi picks up the passenger and the other one returns empty" (the
   loser of a race drives on to the station; a passenger who arrived meanwhile is its own).
   Every taxi learns from the one team reward (+20 per delivery, -1 per waiting passenger and
   step, -10 per illegal action: ``make_text_env``). Footnote 4's arrival rate is read over the
-  grid (``two-taxi-text``: one arrival every ``rate`` steps on average) or per station
-  (``two-taxi-text-station``: every station its own). ``Navigate(t)`` is ``TeamNavigate``:
+  grid (``two-taxi``: one arrival every ``rate`` steps on average) or per station
+  (``two-taxi-station``: every station its own). ``Navigate(t)`` is ``TeamNavigate``:
   -5 per move inside it and no moves into walls, because the team reward's noise (the other
   taxi's deliveries) in the moves' values made greedy taxis bump into walls forever;
-- ``two-taxi``, the first build: ``Get_s`` ends as soon as station ``s`` has no passenger
+- ``two-taxi-earlier``, the first build: ``Get_s`` ends as soon as station ``s`` has no passenger
   (another taxi took it), so a lost race costs nothing after the pickup; each taxi learns from
   its own share of the reward (its deliveries and illegal actions, half the waiting cost).
 
@@ -369,7 +369,7 @@ def make_env(
     n_agents: int = 2,
     mean_interarrival: float = MEAN_INTERARRIVAL,
 ):
-    """The two-taxi task for ``seeds``; each taxi learns from its own share of the reward."""
+    """The two-taxi-earlier task for ``seeds``; each taxi learns from its own share of reward."""
     return TwoTaxiEnv(
         seeds,
         envs_per_learner,
@@ -488,15 +488,15 @@ def _algos(text: bool = False, **env_options) -> dict[str, AlgoSpec]:
 
 #: the first build: a Get ends when its passenger is gone, arrivals over the grid, own rewards
 DOMAIN = DomainSpec(
-    name="two-taxi",
-    description="two taxis serving arriving passengers (Figure 6.10), discrete time, continuing",
+    name="two-taxi-earlier",
+    description="two taxis, the reading before Section 6.6's (kept for comparison)",
     make_env=make_env,
     algos=_algos(),
     make_evaluator=_evaluator,
 )
 #: the text's task: Get ends at its station (the loser returns empty), one team reward
 DOMAIN_TEXT = DomainSpec(
-    name="two-taxi-text",
+    name="two-taxi",
     description="two taxis as Section 6.6 builds them: a race's loser returns empty, team "
     "reward, one arrival process over the grid",
     make_env=make_text_env,
@@ -505,8 +505,8 @@ DOMAIN_TEXT = DomainSpec(
 )
 #: the text's task, footnote 4 read per station: each station its own arrival process
 DOMAIN_TEXT_STATION = DomainSpec(
-    name="two-taxi-text-station",
-    description="two-taxi-text with an arrival process per station (footnote 4 per station)",
+    name="two-taxi-station",
+    description="two-taxi with an arrival process per station (footnote 4 per station)",
     make_env=make_text_env,
     algos=_algos(text=True, arrivals="station"),
     make_evaluator=_evaluator,

@@ -1,4 +1,6 @@
-"""Hand-written dispatching rules for the two-taxi domain: how large a gap coordination allows.
+"""Hand-written dispatching rules for the two-taxi-earlier domain.
+
+How large a gap coordination allows.
 
 Each rule acts like a taxi of the learners' hierarchy (Figure 6.10): an empty taxi without a
 task chooses a station with a waiting passenger (its ``Get``), drives there on a shortest path
@@ -8,7 +10,7 @@ waits. The rules differ in how a free taxi picks its station and when its ``Get`
 - ``race``: the nearest waiting passenger, whatever the other taxi does; the task ends only at
   the station (the text's rule: the loser of a race drives on and returns empty);
 - ``race-taken``: the same choice, but the task ends as soon as the station is empty (the
-  first build's ``Get``, ``two-taxi``);
+  first build's ``Get``, ``two-taxi-earlier``);
 - ``coordinated``: a waiting passenger that no other taxi is already driving to (one
   ``Tell`` per choice, as Cooperative HRL's free communication); taxis choosing at the same
   step are matched closest (taxi, station) pair first;

@@ -5,7 +5,8 @@
 1. Env steps (decision epochs x env rows) per second with random actions, in one run: the
    batched env (``FourAGVEnv``, ``TwoTaxiEnv``) at 5 seeds x 64 envs and one row wrapped as a
    PettingZoo ``AECEnv`` (``hrl_torch.env.pettingzoo_env``) stepped in plain Python, agent by agent.
-2. The tables of every learning algorithm of the ``four-agv`` and ``two-taxi`` domains for 5
+2. The tables of every learning algorithm of the ``four-agv-earlier`` and ``two-taxi-earlier``
+domains for 5
    seeds: megabytes of their banks (float32 entries) and of the update scratch buffers.
 
 Prints markdown tables and the load average.
@@ -28,7 +29,7 @@ from hrl_torch.modules.tables import TableBank
 from hrl_torch.multiagent.cooperative import MultiAgentConfig
 from hrl_torch.runs import registry
 
-ENVS = {"four-agv": FourAGVEnv, "two-taxi": TwoTaxiEnv}
+ENVS = {"four-agv-earlier": FourAGVEnv, "two-taxi-earlier": TwoTaxiEnv}
 
 
 def batched_steps_per_second(env_class, seeds: int, envs: int, seconds: float) -> float:

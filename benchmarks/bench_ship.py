@@ -19,7 +19,7 @@ from dataclasses import replace
 import torch
 
 from agents.ship import ship_hierarchy
-from agents.ship_domain import DOMAIN
+from agents.ship_domain import DOMAIN_EARLIER as DOMAIN  # the reading this benchmark times
 from agents.ship_learners import PARAMS, make_hybrid
 from envs.ship import ShipSteeringEnv
 from hrl_torch.training.config import TrainConfig

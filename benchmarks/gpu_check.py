@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         if "taxi" in parts:
             jobs.append(lambda g=graph: step_speed("taxi", "maxq-q", *big, dev, g))
         if "ship" in parts:
-            jobs.append(lambda g=graph: step_speed("ship-steering", "hybrid", *big, dev, g))
+            jobs.append(lambda g=graph: step_speed("ship-steering-earlier", "hybrid", *big, dev, g))
         if "threshold" in parts:
             jobs.append(lambda g=graph: to_threshold(*thr, dev, g))
         if "threshold64" in parts:  # (64 envs per seed: 64,000 rows, under the graph's limit)

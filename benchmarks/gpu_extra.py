@@ -41,8 +41,8 @@ from gpu_check import _captured, _sync, _trainer, step_speed  # noqa: E402
 import agents  # noqa: E402,F401  (registers the domains)
 from hrl_torch.runs import registry  # noqa: E402
 
-NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
-NAMED.append(("four-agv", "cooperative"))
+NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering-earlier", "hybrid")]
+NAMED.append(("four-agv-earlier", "cooperative"))
 SIZES = [(1, 1), (10, 512), (100, 2048), (1000, 1024)]
 
 
@@ -173,7 +173,9 @@ def ship(device: str, seconds: float) -> list[dict]:
     for seeds, envs, graph, limit in runs:
         pg_traces.STATIC_RING_ENTRIES = limit
         try:
-            r = step_speed("ship-steering", "hybrid", seeds, envs, device, graph, seconds=seconds)
+            r = step_speed(
+                "ship-steering-earlier", "hybrid", seeds, envs, device, graph, seconds=seconds
+            )
         except Exception as exc:
             r = {"seeds": seeds, "envs": envs, "graph": graph, "error": _error(exc)}
         finally:
@@ -218,6 +220,7 @@ def breakdown(device: str, steps: int = 5) -> list[dict]:
 def evaluation(device: str) -> list[dict]:
     """One evaluation, the CPU's way (a read every step) against the off-CPU way, in turn."""
     from hrl_torch.common import devices
+
     out = []
     for domain, algo, seeds, episodes in (
         ("taxi", "maxq-q", 1000, 100),

@@ -115,7 +115,7 @@ def decode(state: torch.Tensor) -> dict[str, torch.Tensor]:
 
 
 class TaxiFuelEnv(BatchedEnv):
-    """Torch-batched taxi-fuel (see the module docstring).
+    """Torch-batched taxi-fuel-earlier (see the module docstring).
 
     Args:
         seeds: one seed per learner.

@@ -154,7 +154,7 @@ def reachable() -> torch.Tensor:
 
 
 class TaxiFuelTextEnv(TaxiFuelEnv):
-    """Torch-batched taxi-fuel as the text sets it (see the module docstring).
+    """Torch-batched taxi-fuel-earlier as the text sets it (see the module docstring).
 
     ``TaxiFuelEnv`` on this module's tables, observation fields and out-of-fuel rule.
 

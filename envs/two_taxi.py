@@ -91,7 +91,7 @@ None: the task is continuing (never terminated; no time limit unless one is aske
 * v0: Section 6.6; the arrival process per footnote 4, the rewards, the tie rules and the
   order within a step are our choices (the text gives none of them).
 * ``arrivals="station"`` added (footnote 4 read per station); ``own_rewards=False`` (one team
-  reward for both taxis) is what the text's task ``two-taxi-text`` uses.
+  reward for both taxis) is what the text's task ``two-taxi`` uses.
 """
 
 from __future__ import annotations

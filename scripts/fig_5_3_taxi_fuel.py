@@ -2,9 +2,9 @@
 
 The text's claims (Section 5.2.1): MAXQ-Q converges fastest, HPGRL reaches MAXQ-Q's performance
 but much more slowly, flat Q-learning is the slowest (HPGRL slightly faster). Each algorithm
-trains all seeds as one population (``hrl-torch train taxi-fuel --algo ...``); the greedy return
-over 100 fixed evaluation episodes is the curve. The threshold is the optimal policy's expected
-return (computed here by value iteration over the 6,500 states) minus 2.
+trains all seeds as one population (``hrl-torch train taxi-fuel-earlier --algo ...``); the greedy
+return over 100 fixed evaluation episodes is the curve. The threshold is the optimal policy's
+expected return (computed here by value iteration over the 6,500 states) minus 2.
 
 Writes a run folder per algorithm, ``<out>/taxi_fuel_compare/eval_return.png`` (Figure 5.3) and
 ``table.md`` (the rows of docs/reproduction.md).

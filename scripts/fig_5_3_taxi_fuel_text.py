@@ -1,8 +1,8 @@
 """Taxi-fuel as the text sets it (Figure 5.3): average reward per step of MAXQ-Q, HPGRL, flat Q.
 
-Domain ``taxi-fuel-text`` (``agents.taxi_fuel_text``): the text's 8,750 states, no time limit,
+Domain ``taxi-fuel`` (``agents.taxi_fuel_text``): the text's 8,750 states, no time limit,
 the root over the full state, and the text's measure, the average reward per step over the run.
-Each algorithm trains all seeds as one population (``hrl-torch train taxi-fuel-text --algo
+Each algorithm trains all seeds as one population (``hrl-torch train taxi-fuel --algo
 ...``). Two curves per algorithm: the greedy policy's reward per step (``charts/eval_throughput``,
 32 rows x 500 steps, episodes one after the other) and the training reward per step with
 exploration (``charts/reward_rate``). The reference is the optimal gain, by value iteration

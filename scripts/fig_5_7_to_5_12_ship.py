@@ -10,7 +10,8 @@ on their mean action) from the two starts given in Section 5.3.
 
     python scripts/fig_5_7_to_5_12_ship.py                       # hybrid, 5 seeds, 50,000 episodes
     python scripts/fig_5_7_to_5_12_ship.py --algos flat-pg actor-critic
-    python scripts/fig_5_7_to_5_12_ship.py --plot-only           # redraw from saved results
+    python scripts/fig_5_7_to_5_12_ship.py --algos hybrid-earlier  # the reading before Section
+    5.3's python scripts/fig_5_7_to_5_12_ship.py --plot-only           # redraw from saved results
 
 Writes ``<out>/<algo>.json`` (curves, wall-clock, env steps), ``<algo>.pt`` (the learner) and
 the figures ``fig_5_7.png`` ... ``fig_5_12.png`` to ``--out`` (default ``runs/ship``).
@@ -28,7 +29,7 @@ import numpy as np
 import torch
 
 from agents.ship import DIRECTION_NODES, SUBTASK_NAMES, flat_graph, ship_hierarchy
-from agents.ship_domain import DOMAIN
+from agents.ship_domain import DOMAIN, DOMAIN_EARLIER
 from agents.ship_learners import PARAMS, make_actor_critic, make_flat_pg, make_hybrid
 from agents.ship_text import (
     TEXT,
@@ -43,24 +44,33 @@ from hrl_torch.modules.exploration import Greedy
 from hrl_torch.training.agent import HierarchicalAgent
 from hrl_torch.training.collector import collect
 
-GRAPHS = {"hybrid": ship_hierarchy, "flat-pg": flat_graph, "actor-critic": flat_graph}
-MAKERS = {"hybrid": make_hybrid, "flat-pg": make_flat_pg, "actor-critic": make_actor_critic}
-LABELS = {"hybrid": "hierarchical hybrid", "flat-pg": "flat PGRL", "actor-critic": "actor-critic"}
-# the variants as Section 5.3 sets them (agents/ship_text.py): same graphs, TextParams
-for _name, _maker in (
-    ("hybrid", make_hybrid_text),
-    ("flat-pg", make_flat_pg_text),
-    ("actor-critic", make_actor_critic_text),
-):
-    GRAPHS[f"{_name}-text"] = GRAPHS[_name]
-    MAKERS[f"{_name}-text"] = _maker
-    LABELS[f"{_name}-text"] = f"{LABELS[_name]} (text's set-up)"
-HYBRIDS = ("hybrid", "hybrid-text")
+# the dissertation's set-up (agents/ship_text.py, TextParams) under the plain names, the
+# earlier reading (ShipHyperparams) as ``-earlier``: both on the same graphs
+_GRAPH = {"hybrid": ship_hierarchy, "flat-pg": flat_graph, "actor-critic": flat_graph}
+_LABEL = {"hybrid": "hierarchical hybrid", "flat-pg": "flat PGRL", "actor-critic": "actor-critic"}
+_MAKERS = {
+    "hybrid": (make_hybrid_text, make_hybrid),
+    "flat-pg": (make_flat_pg_text, make_flat_pg),
+    "actor-critic": (make_actor_critic_text, make_actor_critic),
+}
+GRAPHS, MAKERS, LABELS = {}, {}, {}
+for _name, (_text, _earlier) in _MAKERS.items():
+    GRAPHS[_name] = GRAPHS[f"{_name}-earlier"] = _GRAPH[_name]
+    MAKERS[_name], MAKERS[f"{_name}-earlier"] = _text, _earlier
+    LABELS[_name] = f"{_LABEL[_name]} (text's set-up)"
+    LABELS[f"{_name}-earlier"] = _LABEL[_name]
+HYBRIDS = ("hybrid-earlier", "hybrid")
 
 
 def base_params(algo: str):
-    """The hyperparameters an algorithm starts from: ``TEXT`` for the -text variants."""
-    return TEXT if algo.endswith("-text") else PARAMS
+    """The hyperparameters an algorithm starts from: ``PARAMS`` for the -earlier readings."""
+    return PARAMS if algo.endswith("-earlier") else TEXT
+
+
+def spec_of(algo: str):
+    """The registered spec of ``algo`` (``ship-steering`` or ``ship-steering-earlier``)."""
+    domain = DOMAIN_EARLIER if algo.endswith("-earlier") else DOMAIN
+    return domain.algos[algo.removesuffix("-earlier")]
 
 
 def params_of(algo: str, overrides: dict):
@@ -118,14 +128,14 @@ def parse() -> Args:
 
 def train(algo: str, args: Args, out: Path) -> dict:
     """Train one algorithm's population; save its curves and learner."""
-    spec = DOMAIN.algos[algo]
+    spec = spec_of(algo)
     params = params_of(algo, args.overrides)
     envs = args.envs or spec.envs_per_learner
     seeds = list(range(args.seeds))
     graph = GRAPHS[algo](params.out_of_bounds_reward)
     learner = MAKERS[algo](graph, len(seeds), params)
     pretrain = {}
-    if hasattr(learner, "pretrain"):  # hybrid-text: the low level alone first (Figure 5.5)
+    if hasattr(learner, "pretrain"):  # hybrid: the low level alone first (Figure 5.5)
         print(f"{algo}: low-level subtasks alone until {params.pretrain_target:.0%} success")
         pretrain = learner.pretrain(seeds)
         for name, st in pretrain.items():
@@ -322,7 +332,7 @@ def figures(results: dict, out: Path) -> list[Path]:
 
 
 def figure_pretrain(result: dict, out: Path) -> Path:
-    """The low-level subtasks' own learning curves (hybrid-text's pretraining, Figure 5.5)."""
+    """The low-level subtasks' own learning curves (the hybrid's pretraining, Figure 5.5)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -1,10 +1,10 @@
 """Figures 6.11-6.14: two taxis with Cooperative and COM-Cooperative HRL and their baselines.
 
 Every curve is one population run (``hrl_torch.runs.experiment.run_experiment``, the CLI's path)
-of a two-taxi domain (``--domain``): ``two-taxi-text`` (default: the text's task, a race's loser
-returns empty, one team reward, one arrival process over the grid), ``two-taxi-text-station``
-(the same, an arrival process per station) or ``two-taxi`` (the first build: a ``Get`` ends when
-its passenger is taken, each taxi its own share of the reward).
+of a two-taxi-earlier domain (``--domain``): ``two-taxi`` (default: the text's task, a race's loser
+returns empty, one team reward, one arrival process over the grid), ``two-taxi-station``
+(the same, an arrival process per station) or ``two-taxi-earlier`` (the first build: a ``Get`` ends
+when its passenger is taken, each taxi its own share of the reward).
 
 - Figures 6.11 and 6.12: throughput (passengers delivered per 5,000 steps) and average
   waiting time per passenger of selfish multi-agent HRL, Cooperative HRL, COM-Cooperative HRL
@@ -26,7 +26,7 @@ comparison plots of the training curves (mean over seeds) and ``table.md``: fina
 training values and the training curves' means over the whole run (a gap that closes late
 shows there), mean ± sd over seeds.
 
-    python scripts/fig_6_11_to_6_14_two_taxi.py [--domain two-taxi-text] [--seeds 5]
+    python scripts/fig_6_11_to_6_14_two_taxi.py [--domain two-taxi] [--seeds 5]
         [--steps 200000] [--eval-every 20000] [--only fig_6_11 ...] [--reuse]
 """
 
@@ -46,7 +46,7 @@ from hrl_torch.runs.experiment import RunOptions
 from hrl_torch.runs.report import compare_plot, mean_sd, run_variant
 from hrl_torch.training.runlog import read_curves
 
-DOMAINS = ("two-taxi-text", "two-taxi-text-station", "two-taxi")
+DOMAINS = ("two-taxi", "two-taxi-station", "two-taxi-earlier")
 THROUGHPUT, WAIT, COM_RATE = "charts/throughput", "charts/wait", "charts/communication_rate"
 BASE = [("selfish", {}), ("cooperative", {}), ("com-0", {}), ("single", {})]
 RATES = (5.0, MEAN_INTERARRIVAL, 20.0)

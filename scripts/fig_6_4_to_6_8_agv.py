@@ -3,7 +3,7 @@
 Every curve is one population run (``hrl_torch.runs.experiment.run_experiment``, the CLI's path).
 Two readings of the task (``--variant``):
 
-``text`` (default, domain ``four-agv-text``, ``agents/four_agv_text.py``): committed jobs that
+``text`` (default, domain ``four-agv``, ``agents/four_agv_text.py``): committed jobs that
 wait at an empty bay / a full buffer, a root over buffer levels, one team reward, per-AGV
 dispatching rules without reservations:
 
@@ -15,8 +15,8 @@ dispatching rules without reservations:
 A figure's runs are shared with the figures after it in one process (``--only fig_6_5
 fig_6_7_2s`` trains ``cooperative-2s`` once).
 
-``old`` (domain ``four-agv``, ``agents/four_agv.py``): jobs that end when their item is gone,
-the "job available" root, own rewards, centralised rules with reservations:
+``old`` (domain ``four-agv-earlier``, ``agents/four_agv.py``): jobs that end when their item is
+gone, the "job available" root, own rewards, centralised rules with reservations:
 
 - Figure 6.4: Cooperative HRL, selfish multi-agent HRL, single-agent HRL (Table 6.1 timing);
 - Figure 6.5: Cooperative and selfish HRL with 2 s primitive actions (``cooperative-2s``,
@@ -63,7 +63,7 @@ FIGURES_TEXT = {
     "fig_6_7": [("cooperative", {}), ("fcfs", {}), ("hqf", {}), ("nsf", {})],
     "fig_6_7_2s": [("cooperative-2s", {}), ("fcfs-2s", {}), ("hqf-2s", {}), ("nsf-2s", {})],
 }
-VARIANTS = {"text": ("four-agv-text", FIGURES_TEXT), "old": ("four-agv", FIGURES_OLD)}
+VARIANTS = {"text": ("four-agv", FIGURES_TEXT), "old": ("four-agv-earlier", FIGURES_OLD)}
 
 
 def _variant() -> str:

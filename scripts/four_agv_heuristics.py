@@ -6,7 +6,7 @@ fixed simulated time and prints the assemblies delivered per 1,000 s: mean and s
 deviation over the seeds, each seed averaged over its envs. The three rules run as one batch of
 env rows, rule ``k`` on block ``k``, with the same seeds in every block: every rule meets the
 same part arrivals and assembly times (the env draws its random numbers whatever the state).
-``--per-agv`` runs the per-AGV rules of ``four-agv-text`` (each vehicle on its own view,
+``--per-agv`` runs the per-AGV rules of ``four-agv`` (each vehicle on its own view,
 committed to its job, no reservations) instead of the centralised dispatchers.
 Assemblies count when they are unloaded before the time limit; every row runs until its clock
 passes it.
@@ -39,7 +39,7 @@ def main() -> None:
     parser.add_argument(
         "--per-agv",
         action="store_true",
-        help="each AGV applies the rule on its own, committed, no reservations (four-agv-text)",
+        help="each AGV applies the rule on its own, committed, no reservations (four-agv)",
     )
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -3,7 +3,7 @@
 Starts each low-level subtask alone at its local start (Figure 5.5) with a uniformly random
 heading and turning rate, and runs it until local success, failure or the guard:
 
-- the learned Gaussian policies of a saved hybrid (``<run>/hybrid.pt`` from
+- the learned Gaussian policies of a saved hybrid (``<run>/<algo>.pt`` from
   ``scripts/fig_5_7_to_5_12_ship.py``), on their mean action;
 - a proportional controller: turning rate = bearing error to the local goal, clipped to
   +-15 deg/s.
@@ -11,10 +11,10 @@ heading and turning rate, and runs it until local success, failure or the guard:
 Prints the success rate per seed and, per band of the initial heading error, for seed 0 and for
 the controller (docs/reproduction.md, "Why the low level is the bottleneck").
 
-    python scripts/ship_low_level_check.py --run runs/ship
-    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2
-    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid-text --seeds 2 \
-        --file runs/ship_text/hybrid-text-pretrained.pt     # right after the pretraining
+    python scripts/ship_low_level_check.py --run runs/ship --algo hybrid-earlier
+    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid --seeds 2
+    python scripts/ship_low_level_check.py --run runs/ship_text --algo hybrid --seeds 2 \
+        --file runs/ship_text/hybrid-pretrained.pt     # right after the pretraining
 """
 
 from __future__ import annotations
@@ -108,11 +108,11 @@ def main() -> None:
     parser.add_argument("--run", default="runs/ship", help="folder holding hybrid.pt")
     parser.add_argument("--seeds", type=int, default=5, help="learners in the saved hybrid")
     parser.add_argument("--starts", type=int, default=20_000)
-    parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-text"])
+    parser.add_argument("--algo", default="hybrid", choices=["hybrid", "hybrid-earlier"])
     parser.add_argument("--file", default=None, help="checkpoint (default: <run>/<algo>.pt)")
     a = parser.parse_args()
     coders = [low_level_tile_coder()] * 2
-    if a.algo == "hybrid":
+    if a.algo == "hybrid-earlier":
         learner = make_hybrid(ship_hierarchy(PARAMS.out_of_bounds_reward), a.seeds, PARAMS)
     else:
         saved = Path(a.run) / f"{a.algo}.json"  # the run's TextParams (features, ...)

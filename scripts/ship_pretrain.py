@@ -1,4 +1,4 @@
-"""Ship steering: one low-level subtask alone (Figure 5.5), as ``hybrid-text`` pretrains it.
+"""Ship steering: one low-level subtask alone (Figure 5.5), as ``hybrid`` pretrains it.
 
 Prints the successes per block of 1000 training episodes and, on the mean action from uniform
 starts, the success per band of start heading error (``ship_low_level_check``).

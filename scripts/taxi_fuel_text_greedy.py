@@ -1,4 +1,4 @@
-"""What a trained taxi-fuel-text learner's greedy policy does over its evaluation run.
+"""What a trained taxi-fuel learner's greedy policy does over its evaluation run.
 
 Loads a run folder's ``checkpoint.pt`` and runs the greedy evaluation's protocol (the eval
 seed, ``EVAL_ROWS`` rows, ``EVAL_HORIZON`` steps from a reset) once, counting per seed the

@@ -1,4 +1,4 @@
-"""The taxi-fuel-text sweep table of docs/reproduction.md: one row per trial of sweep folders.
+"""The taxi-fuel sweep table of docs/reproduction.md: one row per trial of sweep folders.
 
 Per trial (a run folder under ``SWEEP/<trial>/``): the final greedy reward per step per seed and
 its mean (``summary.json``, ``final_eval_throughput``), the mean final training reward per step

@@ -1,4 +1,5 @@
-"""Lost races on the two-taxi task: empty arrivals of hand-written rules and of learned policies.
+"""Lost races on the two-taxi-earlier task: empty arrivals of hand-written rules and of learned
+policies.
 
 An *empty arrival* is an empty taxi moving onto a station where nobody waits (with the text's
 ``Get``, a lost race or a wasted trip). Counts per taxi and 1,000 steps over 2,000 steps after
@@ -41,7 +42,7 @@ def empty_arrivals(env: TwoTaxiEnv, step) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("runs", nargs="*", help="run folders of a two-taxi domain")
+    parser.add_argument("runs", nargs="*", help="run folders of a two-taxi-earlier domain")
     args = parser.parse_args()
     torch.set_num_threads(1)
     print("| policy | empty arrivals per taxi and 1,000 steps | deliveries per 5,000 steps |")

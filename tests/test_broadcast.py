@@ -93,7 +93,7 @@ def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
     assert same == (broadcast == "sequential")
 
 
-@pytest.mark.parametrize("domain", ["trash", "two-taxi", "four-agv"])
+@pytest.mark.parametrize("domain", ["trash", "two-taxi-earlier", "four-agv-earlier"])
 def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
     """All n - 1 re-choosing rounds (no host read) equal stopping when no code changed."""
     import agents  # noqa: F401

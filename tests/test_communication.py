@@ -159,7 +159,7 @@ def _two_taxi_trainer(seeds):
     from hrl_torch.runs.experiment import RunOptions, build_trainer
 
     opts = RunOptions(seeds=seeds, envs_per_learner=4, progress=False, tensorboard=False)
-    return build_trainer(registry.get("two-taxi"), "com-1", opts)
+    return build_trainer(registry.get("two-taxi-earlier"), "com-1", opts)
 
 
 def test_a_com_population_equals_separate_runs():

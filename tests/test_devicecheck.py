@@ -137,7 +137,7 @@ def test_a_device_named_with_an_index_is_the_device_without_one():
     different device (the ship's graph is not tabulated: every subtask answers each step)."""
     opts = RunOptions(seeds=[0], envs_per_learner=2, eval_episodes=2, device="cpu:0")
     opts.progress = opts.tensorboard = False
-    trainer = build_trainer(registry.get("ship-steering"), "hybrid", opts)
+    trainer = build_trainer(registry.get("ship-steering-earlier"), "hybrid", opts)
     for _ in range(5):
         trainer.train_step()
     assert trainer.evaluate()[0].shape == (1,)

@@ -31,7 +31,7 @@ def test_every_domain_keeps_the_contract(name):
     assert before["rng"] == after["rng"]
 
 
-@pytest.mark.parametrize("name", ["trash", "two-taxi", "four-agv"])
+@pytest.mark.parametrize("name", ["trash", "two-taxi-earlier", "four-agv-earlier"])
 def test_torchrl_checker_runs_on_multi_agent_envs(name):
     domain = registry.get(name)
     env = domain.make_env([0], 2, "torch")

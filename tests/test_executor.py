@@ -279,7 +279,8 @@ def test_a_continuous_primitive_takes_the_action_chosen_with_its_push():
 
 
 @pytest.mark.parametrize(
-    "domain, algo", [("taxi", "maxq-q"), ("taxi-fuel", "hpgrl"), ("ship-steering", "hybrid")]
+    "domain, algo", [("taxi", "maxq-q"), ("taxi-fuel-earlier", "hpgrl"), ("ship-steering-earlier",
+    "hybrid")]
 )
 def test_choosing_for_the_choosing_rows_only_gives_the_same_run(domain, algo, monkeypatch):
     # large CPU batches choose level by level for the rows that choose at a level only

@@ -66,7 +66,7 @@ def test_only_a_non_learning_agent_on_a_tabulated_graph_freezes_within_its_budge
     # 2 learners x 500 states against an eighth of 20 rows x steps
     assert not agent.freeze_values(399)
     assert agent.freeze_values(400)
-    fuel = trained("taxi-fuel", "maxq-q", 0, eval_episodes=10)  # not tabulated
+    fuel = trained("taxi-fuel-earlier", "maxq-q", 0, eval_episodes=10)  # not tabulated
     assert not fuel.evaluation_agent(fuel.eval_env, "eval-explore").freeze_values(10**6)
 
 

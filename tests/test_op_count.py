@@ -25,7 +25,7 @@ BUDGETS = {
     ("small-agv", "har", 1): 360,  # 344 (647 at 1ce5127)
     ("small-agv", "har", 8): 372,  # 355
     # (+79: every row's PG choice and memory-feature start computed, no compaction: 1,082)
-    ("ship-steering", "hybrid", 1): 1_180,  # 1,161 (1,568 at 1ce5127)
+    ("ship-steering-earlier", "hybrid", 1): 1_180,  # 1,161 (1,568 at 1ce5127)
 }
 
 

@@ -21,10 +21,10 @@ from hrl_torch.runs.experiment import RunOptions, build_trainer
 CASES = [
     ("taxi", "maxq-q"),
     ("small-agv", "har"),
-    ("ship-steering", "hybrid"),
-    ("taxi-fuel", "hpgrl"),
+    ("ship-steering-earlier", "hybrid"),
+    ("taxi-fuel-earlier", "hpgrl"),
     ("key-door", "maxq-q"),
-    ("two-taxi", "selfish"),
+    ("two-taxi-earlier", "selfish"),
 ]
 
 

@@ -19,6 +19,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 from pathlib import Path
 
 from hrl_torch import __version__
@@ -38,6 +39,7 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
     ``--domain-module`` modules are also looked for in the working folder, after the rest.
     """
     from hrl_torch.runs import registry
+
     root = os.path.abspath(project) if project is not None else _installed_repository()
     if root is not None:
         if root in sys.path:
@@ -61,6 +63,18 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
             f"no domains: no 'agents' package under {root} (pass --project REPOSITORY), no "
             "installed plugin, no --domain-module"
         )
+
+
+def _current_names(domain: str, algo: str | None) -> tuple[str, str | None]:
+    """``registry.current_names``, its deprecation said in one line on stderr."""
+    from hrl_torch.runs import registry
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", DeprecationWarning)
+        names = registry.current_names(domain, algo)
+    for warning in said:
+        print(f"hrl-torch: {warning.message}", file=sys.stderr)
+    return names
 
 
 def _installed_repository() -> str | None:
@@ -162,6 +176,7 @@ def _run(args: argparse.Namespace) -> int:
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
+
     for name in registry.names():
         try:
             domain = registry.get(name)
@@ -188,6 +203,7 @@ def _check(name: str, algo: str | None) -> int:
     from hrl_torch.runs.experiment import check_domain_env
 
     try:
+        name, algo = _current_names(name, algo)
         domain = registry.get(name)
     except (KeyError, ValueError) as err:
         raise UserError(str(err).strip('"')) from err
@@ -299,6 +315,7 @@ def _train_options(args: argparse.Namespace):
                 )
             missing = "the domain" if args.domain is None else "--algo"
             raise UserError(f"train needs {missing} (or --resume CHECKPOINT)")
+        args.domain, args.algo = _current_names(args.domain, args.algo)
         domain = registry.get(args.domain)
         spec = check_choice(domain, args.algo, given.get("backend", "torch"))
         if args.collector:  # (a one-row env says whether it is multi-agent)
@@ -383,9 +400,11 @@ def _check_writable_folder(path: str, option: str) -> None:
 def _continuation(args, state: dict, given: dict, display: dict):
     """``_train_options`` for a checkpoint that records its run."""
     from hrl_torch.runs import registry
-    from hrl_torch.runs.experiment import continue_options
+    from hrl_torch.runs.experiment import continue_options, recorded_run
 
-    run = state["run"]
+    run = recorded_run(state["run"])
+    if args.domain is not None:
+        args.domain, args.algo = _current_names(args.domain, args.algo)
     if args.out is not None:
         raise UserError("--out does not apply to --resume: a run continues in its own folder")
     _check_writable_folder(os.path.dirname(os.path.abspath(args.resume)), "--resume")

@@ -218,6 +218,12 @@ def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
     return config
 
 
+def recorded_run(run: dict) -> dict:
+    """A checkpoint's run record with today's domain and algorithm names (0.1 used others)."""
+    domain, algo = registry.recorded_names(run["domain"], run["algo"], run.get("version"))
+    return {**run, "domain": domain, "algo": algo}
+
+
 def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
     """The ``RunOptions`` that continue the run a checkpoint records (``run``: its ``"run"``).
 
@@ -268,7 +274,9 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
     check_choice(domain, algo, opts.backend)  # before any folder is made
     state = load_checkpoint(opts.resume) if opts.resume else None
     if state is not None and "run" in state:  # the recorded settings, checked against opts
-        opts = continue_options(opts.resume, state["run"], **_given(domain, algo, opts))
+        opts = continue_options(
+            opts.resume, recorded_run(state["run"]), **_given(domain, algo, opts)
+        )
     spec = algo_spec(domain, algo, opts)
     if opts.check_env:
         check_domain_env(domain, algo, opts.backend)
@@ -418,7 +426,7 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     state = load_checkpoint(path)
     if "run" not in state:
         raise ValueError(f"{path} records no run configuration (written by an older hrl-torch)")
-    run = state["run"]
+    run = recorded_run(state["run"])
     opts = continue_options(path, run, progress=False, tensorboard=False)
     if episodes is not None or not opts.eval_episodes:  # a run trained without evaluation
         opts.eval_episodes = episodes or DEFAULT_EVAL_EPISODES

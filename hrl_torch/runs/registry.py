@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
 from importlib.metadata import entry_points
 
 from hrl_torch.runs import algorithms
@@ -101,8 +102,56 @@ def source(name: str) -> str:
     return _SOURCES[name]
 
 
+#: 0.1's names whose configuration has another name from 0.2.0 on: the dissertation's set-up
+#: has the plain name, the readings made before it are ``-earlier`` variants
+RENAMED_0_1 = {
+    "four-agv": "four-agv-earlier",
+    "four-agv-text": "four-agv",
+    "two-taxi": "two-taxi-earlier",
+    "two-taxi-text": "two-taxi",
+    "two-taxi-text-station": "two-taxi-station",
+    "taxi-fuel": "taxi-fuel-earlier",
+    "taxi-fuel-text": "taxi-fuel",
+}
+#: ship-steering's algorithms of 0.1: ``X-text`` is ``X`` now, 0.1's ``X`` is on the variant
+SHIP_ALGOS_0_1 = ("hybrid", "flat-pg", "actor-critic")
+#: old names that still name today's configuration, for one minor version
+DEPRECATED_NAMES = {old: new for old, new in RENAMED_0_1.items() if "-text" in old}
+
+
+def recorded_names(domain: str, algo: str, version: str | None) -> tuple[str, str]:
+    """Today's names of a run record's ``(domain, algo)``; 0.1's records used the old ones."""
+    if version is None or not str(version).startswith("0.1"):
+        return domain, algo
+    if domain == "ship-steering":
+        if algo.endswith("-text"):
+            return domain, algo.removesuffix("-text")
+        return ("ship-steering-earlier" if algo in SHIP_ALGOS_0_1 else domain), algo
+    return RENAMED_0_1.get(domain, domain), algo
+
+
+def current_names(domain: str, algo: str | None) -> tuple[str, str | None]:
+    """``(domain, algo)`` as given by a user, with 0.1's ``-text`` names mapped (and warned)."""
+    new_domain = DEPRECATED_NAMES.get(domain, domain)
+    new_algo = algo
+    if domain == "ship-steering" and algo is not None and algo.endswith("-text"):
+        new_algo = algo.removesuffix("-text")
+    if (new_domain, new_algo) != (domain, algo):
+        old = f"{domain} --algo {algo}" if new_algo != algo else domain
+        new = f"{new_domain} --algo {new_algo}" if new_algo != algo else new_domain
+        warnings.warn(
+            f"{old} is {new} since hrl-torch 0.2.0 (the dissertation's set-up has the plain "
+            "name); the old name goes in 0.3.0",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+    return new_domain, new_algo
+
+
 def get(name: str) -> DomainSpec:
-    """The ``DomainSpec`` registered as ``name``."""
+    """The ``DomainSpec`` registered as ``name`` (0.1's ``-text`` names still work, warned)."""
+    if name in DEPRECATED_NAMES and name not in _DOMAINS:
+        name = current_names(name, None)[0]
     if name not in _DOMAINS:
         raise KeyError(f"unknown domain {name!r}; registered: {names()}")
     entry = _DOMAINS[name]

@@ -22,7 +22,7 @@ from hrl_torch.common.sync_count import HostSyncCounter
 from hrl_torch.modules.exploration import Greedy
 from hrl_torch.training.agent import HierarchicalAgent
 
-TEXT_ALGOS = ("hybrid-text", "flat-pg-text", "actor-critic-text")
+TEXT_ALGOS = ("hybrid", "flat-pg", "actor-critic")
 
 
 def test_harmonic_step_size_decays_as_assumption_5_3_asks():
@@ -199,7 +199,7 @@ def test_state_baseline_learns_the_reward_to_go_and_needs_renewal_updates():
 def test_low_level_success_counts_the_executions_that_ended_on_their_own():
     from agents.ship_learners import ShipMonitor
 
-    spec = DOMAIN.algos["hybrid-text"]
+    spec = DOMAIN.algos["hybrid"]
     graph = spec.make_graph()
     learner = spec.make_learner(graph, 1)
     assert not learner.monitor.count_cut

@@ -1,4 +1,4 @@
-"""The taxi-fuel hierarchy (Dietterich 1998 with Refuel) and its learners."""
+"""The taxi-fuel-earlier hierarchy (Dietterich 1998 with Refuel) and its learners."""
 
 import pytest
 import torch

@@ -1,4 +1,4 @@
-"""taxi-fuel-text: the root over the text's 8,750 states, measured in reward per step."""
+"""taxi-fuel: the root over the text's 8,750 states, measured in reward per step."""
 
 import math
 
@@ -24,7 +24,7 @@ def test_the_root_sees_the_taxis_location():
 
 
 def test_registered_with_a_reward_per_step_evaluation():
-    domain = registry.get("taxi-fuel-text")
+    domain = registry.get("taxi-fuel")
     assert domain is DOMAIN and sorted(domain.algos) == ["hpgrl", "maxq-q", "maxq-q-fuel", "q"]
     evaluator = domain.make_evaluator(domain.algos["q"].train)
     assert isinstance(evaluator, ThroughputEvaluator)

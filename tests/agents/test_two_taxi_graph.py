@@ -150,7 +150,7 @@ def test_waiting_time_is_the_waits_over_the_deliveries_and_logged_per_seed():
     from hrl_torch.runs import registry
     from hrl_torch.runs.experiment import RunOptions, build_trainer
 
-    evaluator = registry.get("two-taxi").make_evaluator(None)
+    evaluator = registry.get("two-taxi-earlier").make_evaluator(None)
     step = TensorDict(
         {
             "n_delivered": torch.tensor([2, 0, 2]),
@@ -172,7 +172,7 @@ def test_waiting_time_is_the_waits_over_the_deliveries_and_logged_per_seed():
     assert logged["charts/throughput"] == [10000.0, 0.0]
     # the trainer's statistics of a multi-agent learner are summed per seed (2 taxis each)
     opts = RunOptions(seeds=[0, 1], envs_per_learner=2, progress=False, tensorboard=False)
-    trainer = build_trainer(registry.get("two-taxi"), "selfish", opts)
+    trainer = build_trainer(registry.get("two-taxi-earlier"), "selfish", opts)
     for _ in range(40):
         trainer.train_step()
     calls = trainer.executor.stats.calls  # [4 table sets, nodes]

@@ -19,7 +19,7 @@ def test_two_learning_taxis_deliver_most_passengers(algo):
     opts = RunOptions(
         seeds=[0, 1], steps=STEPS, eval_every=STEPS, progress=False, tensorboard=False
     )
-    trainer = build_trainer(registry.get("two-taxi"), algo, opts)
+    trainer = build_trainer(registry.get("two-taxi-earlier"), algo, opts)
     untrained = trainer.evaluator.evaluate(trainer)[0]
     assert (untrained < 50).all(), untrained  # greedy navigation from equal values loops
     trainer.train()

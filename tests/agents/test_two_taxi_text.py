@@ -113,7 +113,7 @@ def test_shortest_paths_and_rule_measurement():
 
 
 def test_text_domains_are_registered_with_team_rewards_and_their_arrivals():
-    for name, arrivals in (("two-taxi-text", "grid"), ("two-taxi-text-station", "station")):
+    for name, arrivals in (("two-taxi", "grid"), ("two-taxi-station", "station")):
         domain = registry.get(name)
         assert {"selfish", "cooperative", "com-0", "com-10", "single"} <= set(domain.algos)
         spec = domain.algos["cooperative"]
@@ -123,7 +123,7 @@ def test_text_domains_are_registered_with_team_rewards_and_their_arrivals():
         graph = domain.algos["selfish"].make_graph()
         ctx = graph.context(obs(taxi_loc=12))
         assert not ctx.terminated[0, graph.index["GetB"]]
-    old = registry.get("two-taxi").make_env([0], 2, "torch")
+    old = registry.get("two-taxi-earlier").make_env([0], 2, "torch")
     assert old.own_rewards and old.arrivals == "grid"
     assert WAIT == 6
 

@@ -85,7 +85,7 @@ def test_hand_checked_transitions(start, action, after, reward, terminated):
 
 
 def test_the_rest_of_the_rules_are_taxi_fuels():
-    # every taxi-fuel state and action: the same successor, reward and end, except the three
+    # every taxi-fuel-earlier state and action: the same successor, reward and end, except the three
     # rules the text changes (Fillup away from F; Dropoff at a wrong station; below zero)
     old_next, old_reward, old_term, _ = taxi_fuel.transition_tables()
     old = taxi_fuel.decode(torch.arange(taxi_fuel.N_STATES))
