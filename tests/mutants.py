@@ -932,8 +932,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tables-rows-always-distinct",
         "hrl_torch/execution/executor.py",
-        "self.learner.distinct_rows = learner.unique().numel() == learner.numel()",
-        "self.learner.distinct_rows = True",
+        "self.distinct_rows = learner.unique().numel() == learner.numel()",
+        "self.distinct_rows = True",
         "rows of one learner take the plain update one after the other (not order-free)",
         ("tests/test_any_device.py", TABLES, "tests/test_population.py", MAXQ_EXACT),
     ),

@@ -137,8 +137,8 @@ class HierarchicalExecutor:
         # read where the caller made it (the CPU: ``meta`` and CUDA rows need no host read)
         self.n_learners = int(learner.max()) + 1 if batch_size else 0
         self.learner = learner.to(device)
-        # (read on the CPU too: ``Learner.rows_distinct`` then needs no device read)
-        self.learner.distinct_rows = learner.unique().numel() == learner.numel()
+        # (read on the CPU too: ``Learner.know_rows`` is told, and needs no device read)
+        self.distinct_rows = learner.unique().numel() == learner.numel()
         self.envs_per_learner = envs_per_learner or batch_size
         self.depth = graph.max_levels
         self.levels = torch.arange(self.depth, **long)

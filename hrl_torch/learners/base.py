@@ -136,18 +136,33 @@ class Learner(MovesTensorAttrs, nn.Module):
         add_at(self.td_abs, (learner, node), error.abs().nan_to_num() * m)
         add_at(self.td_count, (learner, node), m)
 
+    def deferred_checks(self) -> list:
+        """Turn on deferral of this learner's own step checks; the ``DeferredCheck``s (none)."""
+        return []
+
+    def ring_entries(self, rows: int) -> int:
+        """Trace-ring entries a step reads for ``rows`` batch rows (0: no rings)."""
+        return 0
+
+    def know_rows(self, learner: torch.Tensor, distinct: bool) -> None:
+        """Be told that the rows ``learner [B]`` (an agent's) are ``distinct`` (read elsewhere)."""
+        known = self.__dict__.setdefault("_known_rows", {})
+        known[id(learner)] = (learner, distinct)  # (keeps the tensor: its id is not reused)
+        while len(known) > 8:  # each evaluation's agent brings new rows
+            known.pop(next(iter(known)))
+
     def rows_distinct(self, learner: torch.Tensor) -> bool:
         """Whether every row of a batch belongs to another learner (``learner [B]``).
 
-        Then no two rows reach one table entry. Kept while the rows are the same tensor.
+        Then no two rows reach one table entry. Rows an agent told of (``know_rows``) are not
+        read again; others are read once while they are the same tensor.
         """
-        cached = self.__dict__.get("_distinct")
-        if cached is None or cached[0] is not learner:
-            known = vars(learner).get("distinct_rows")  # (the executor's, read on the CPU)
-            distinct = learner.unique().numel() == learner.numel() if known is None else known
-            cached = (learner, distinct)
-            self.__dict__["_distinct"] = cached
-        return cached[1]
+        known = self.__dict__.setdefault("_known_rows", {})
+        rows, distinct = known.get(id(learner), (None, None))
+        if rows is not learner:
+            distinct = learner.unique().numel() == learner.numel()
+            known[id(learner)] = (learner, distinct)
+        return distinct
 
 
 def _names(keys) -> str:

@@ -44,13 +44,14 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from hrl_torch.common.devices import DeferredCheck
 from hrl_torch.common.ops import lookup
 from hrl_torch.common.rng import LevelDraws
 from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
-from hrl_torch.learners.pg_traces import apply_traces
+from hrl_torch.learners.pg_traces import apply_traces, ring_entries
 from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
 from hrl_torch.modules.exploration import Schedule, as_schedule
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
@@ -130,6 +131,9 @@ class HPGRLLearner(Learner):
             [R]`` of the node computed from its own features at ``s'`` (for nodes whose
             internal reward depends on invocation memory, e.g. a local frame).
     """
+
+    deferred_overflow: DeferredCheck | None = None  #: set by ``deferred_checks``
+    ring_entries = ring_entries  #: ``Learner.ring_entries`` (``pg_traces``)
 
     def __init__(
         self,
@@ -445,10 +449,15 @@ class HPGRLLearner(Learner):
         """Line 16 over the rings of the pairs ``pairs [B, S]`` (``pg_traces.apply_traces``)."""
         apply_traces(self, rows, pairs, alpha, cell)
 
+    def deferred_checks(self) -> list[DeferredCheck]:
+        """The ring check, latched on the device instead of read (``training.deferred``)."""
+        self.deferred_overflow = DeferredCheck(self.overflow_error)
+        return [self.deferred_overflow]
+
     def _check_overflow(self, over: torch.Tensor, node: torch.Tensor) -> None:
         """Raise (or, deferred, latch) a (row, depth) whose ring is full ``over [B, S]``."""
-        deferred = self.__dict__.get("deferred_overflow")
-        if deferred is not None and deferred.takes(over):  # (no read: ``defer_checks``)
+        deferred = self.deferred_overflow
+        if deferred is not None and deferred.takes(over):  # (no read: ``deferred_checks``)
             deferred.record(over.any(1), over=over, node=node)
         elif bool(over.any()):
             row = int(over.any(1).nonzero()[0])

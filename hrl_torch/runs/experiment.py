@@ -22,7 +22,6 @@ from hrl_torch.common.config import same
 from hrl_torch.common.rng import check_seeds
 from hrl_torch.common.signals import StopOnSignal
 from hrl_torch.env.envcheck import check_env
-from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
 from hrl_torch.multiagent.cooperative import MultiAgentConfig
 from hrl_torch.multiagent.factory import MultiAgentFactory
 from hrl_torch.runs import registry
@@ -156,7 +155,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         )
     graph = spec.make_graph()  # built on the CPU (building reads data), then moved
     agents = None
-    if isinstance(env, MultiAgentBatchedEnv):  # table sets per seed and agent
+    if env.n_agents is not None:  # table sets per seed and agent
         agents = MultiAgentFactory(env.n_agents, spec.multiagent or MultiAgentConfig())
     sets = len(seeds) if agents is None else agents.table_sets(len(seeds))
     learner = spec.make_learner(graph, sets).to(opts.device)
@@ -255,7 +254,7 @@ def check_domain_env(domain: DomainSpec, algo: str, backend: str = "torch") -> N
         return domain.make_env(seeds, e, backend, **spec.env_options)
 
     env = make([0], 2)
-    graph = None if isinstance(env, MultiAgentBatchedEnv) else spec.make_graph()
+    graph = None if env.n_agents is not None else spec.make_graph()
     check_env(env, graph, make_env=make if backend == "torch" else None, steps=32)
 
 

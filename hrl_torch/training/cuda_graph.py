@@ -362,12 +362,8 @@ CUDA_GRAPH_MAX_RING_ENTRIES = 1 << 21
 
 def _replay_pays(trainer) -> bool:
     """Whether a CUDA graph of ``trainer``'s step is worth capturing (the limits above)."""
-    from hrl_torch.learners.pg import HPGRLLearner
-    from hrl_torch.learners.pg_traces import ring_entries
-
-    rows = trainer.rows.numel()
-    pg = [m for m in trainer.learner.modules() if isinstance(m, HPGRLLearner)]
-    rings = max((ring_entries(m, rows) for m in pg), default=0)
+    rows, modules = trainer.rows.numel(), trainer.learner.modules()
+    rings = max((m.ring_entries(rows) for m in modules if isinstance(m, Learner)), default=0)
     return rows < CUDA_GRAPH_MAX_ROWS and rings < CUDA_GRAPH_MAX_RING_ENTRIES
 
 

@@ -19,7 +19,7 @@ from hrl_torch.common.devices import DeferredCheck
 from hrl_torch.env.batched import BatchedEnv
 from hrl_torch.execution.executor import HierarchicalExecutor, SubtaskTimeoutError, bad_step_error
 from hrl_torch.hierarchy.subtask import GraphError
-from hrl_torch.learners.pg import HPGRLLearner
+from hrl_torch.learners.base import Learner
 
 __all__ = ["DeferredCheck", "defer_checks", "defer_reads", "deferred_meanwhile", "raise_pending"]
 
@@ -42,7 +42,8 @@ def raise_pending(checks: Iterable[DeferredCheck | None]) -> None:
 def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[DeferredCheck]:
     """Turn on deferral of ``env``'s action check and ``executor``'s bad-step and stuck checks.
 
-    With ``learner``, the policy-gradient learners among its modules defer their ring check.
+    With ``learner``, the learners among its modules defer their own checks
+    (``Learner.deferred_checks``: the policy-gradient learners' ring check).
 
     Returns the checks to pass to ``raise_pending``; their messages are the immediate ones'.
     """
@@ -95,9 +96,8 @@ def defer_checks(env, executor: HierarchicalExecutor, learner=None) -> list[Defe
         # at once unless they defer their own, as the ship's does)
         checks.append(env.defer_checks())
     for module in () if learner is None else learner.modules():
-        if isinstance(module, HPGRLLearner):
-            module.deferred_overflow = DeferredCheck(module.overflow_error)
-            checks.append(module.deferred_overflow)
+        if isinstance(module, Learner):  # (a hybrid's parts each defer their own)
+            checks += module.deferred_checks()
     return checks
 
 
