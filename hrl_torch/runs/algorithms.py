@@ -17,16 +17,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from hrl_torch import learners
 from hrl_torch.common.config import Make
-from hrl_torch.learners import (
-    HARLearner,
-    HDRLearner,
-    HHLearner,
-    MaxQLearner,
-    RARLearner,
-    RVIQLearner,
-    SMDPQLearner,
-)
 
 #: what a domain can offer and an algorithm can need
 CAPABILITIES = frozenset(
@@ -151,61 +143,26 @@ def fields_for(tasks: Tasks) -> dict[str, dict]:
 
 
 # ---------------------------------------------------------------------- the built-in families
-_TABULAR = frozenset({"tabular", "single-agent"})
-for _algorithm in (
-    Algorithm(
-        "maxq-q",
-        MaxQLearner,
-        settings={"alpha": 0.5, "gamma": 1.0},
-        description="MAXQ-Q (Dietterich 2000) on the task graph",
-    ),
-    Algorithm(
-        "smdp-q",
-        SMDPQLearner,
-        settings={"alpha": 0.5, "gamma": 1.0},
-        description="SMDP Q-learning at every subtask (HSMQ) on the task graph",
-    ),
-    Algorithm(
-        "q",
-        SMDPQLearner,
-        graph="flat",
-        settings={"alpha": 0.5, "gamma": 1.0},
-        description="flat Q-learning over the states",
-    ),
-    Algorithm(
-        "har",
-        HARLearner,
-        needs=_TABULAR | {"continuing"},
-        settings={"alpha": 0.1},
-        description="hierarchically optimal average reward RL (Algorithm 1)",
-    ),
-    Algorithm(
-        "rar",
-        RARLearner,
-        needs=_TABULAR | {"continuing"},
-        settings={"alpha": 0.1},
-        description="recursively optimal average reward RL (Algorithm 2)",
-    ),
-    Algorithm(
-        "hdr",
-        HDRLearner,
-        needs=_TABULAR | {"continuing"},
-        settings={"alpha": 0.1, "gamma": 0.95},
-        description="hierarchically optimal discounted RL (MAXQ-Q + external completions)",
-    ),
-    Algorithm(
-        "hh",
-        HHLearner,
-        needs=_TABULAR | {"continuing"},
-        description="HH-learning (Seri and Tadepalli 2002), model-based",
-    ),
-    Algorithm(
-        "rvi-q",
-        RVIQLearner,
-        graph="flat",
-        needs=_TABULAR | {"continuing"},
-        settings={"alpha": 0.1},
-        description="flat RVI Q-learning (Abounadi et al. 2001)",
-    ),
-):
-    register_algorithm(_algorithm)
+_EPISODIC = frozenset({"tabular", "single-agent", "episodic"})
+_CONTINUING = frozenset({"tabular", "single-agent", "continuing"})
+#: name, learner, graph, needs, default settings, description
+_BUILT_IN = (
+    ("maxq-q", learners.MaxQLearner, "hierarchy", _EPISODIC, {"alpha": 0.5, "gamma": 1.0},
+     "MAXQ-Q (Dietterich 2000) on the task graph"),
+    ("smdp-q", learners.SMDPQLearner, "hierarchy", _EPISODIC, {"alpha": 0.5, "gamma": 1.0},
+     "SMDP Q-learning at every subtask (HSMQ) on the task graph"),
+    ("q", learners.SMDPQLearner, "flat", _EPISODIC, {"alpha": 0.5, "gamma": 1.0},
+     "flat Q-learning over the states"),
+    ("har", learners.HARLearner, "hierarchy", _CONTINUING, {"alpha": 0.1},
+     "hierarchically optimal average reward RL (Algorithm 1)"),
+    ("rar", learners.RARLearner, "hierarchy", _CONTINUING, {"alpha": 0.1},
+     "recursively optimal average reward RL (Algorithm 2)"),
+    ("hdr", learners.HDRLearner, "hierarchy", _CONTINUING, {"alpha": 0.1, "gamma": 0.95},
+     "hierarchically optimal discounted RL (MAXQ-Q + external completions)"),
+    ("hh", learners.HHLearner, "hierarchy", _CONTINUING, {},
+     "HH-learning (Seri and Tadepalli 2002), model-based"),
+    ("rvi-q", learners.RVIQLearner, "flat", _CONTINUING, {"alpha": 0.1},
+     "flat RVI Q-learning (Abounadi et al. 2001)"),
+)
+for _name, _learner, _graph, _needs, _settings, _description in _BUILT_IN:
+    register_algorithm(Algorithm(_name, _learner, _graph, _needs, _settings, _description))
