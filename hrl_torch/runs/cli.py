@@ -38,6 +38,7 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
     ``--domain-module`` modules are also looked for in the working folder, after the rest.
     """
     from hrl_torch.runs import registry
+
     root = os.path.abspath(project) if project is not None else _installed_repository()
     if root is not None:
         if root in sys.path:
@@ -111,6 +112,8 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
     from hrl_torch.common.checkpoint import CheckpointError
+    from hrl_torch.common.limits import SizeLimitError
+    from hrl_torch.common.safe_files import RunFolderError
     from hrl_torch.env.envcheck import EnvContractError
     from hrl_torch.runs.experiment import format_summary, run_experiment
     from hrl_torch.runs.runlock import RunLockedError
@@ -137,7 +140,14 @@ def _run(args: argparse.Namespace) -> int:
         return 0  # a finished run: nothing to do
     try:
         run_dir, summary = run_experiment(domain, algo, opts)
-    except (RunLockedError, CheckpointError, EnvContractError) as err:  # nothing changed yet
+    except (
+        RunLockedError,
+        CheckpointError,
+        EnvContractError,
+        RunFolderError,
+        SizeLimitError,
+    ) as err:
+        # nothing changed yet
         raise UserError.of(err) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
@@ -162,6 +172,7 @@ def _run(args: argparse.Namespace) -> int:
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
+
     for name in registry.names():
         try:
             domain = registry.get(name)

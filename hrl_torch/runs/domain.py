@@ -251,6 +251,7 @@ def _init_accepting_0_1(self, *args, **kwargs) -> None:
 
 AlgoSpec.__init__ = _init_accepting_0_1
 
+
 @dataclass
 class DomainSpec:
     """A domain: its env factory, backends, algorithms and reference values.

@@ -30,11 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
+from hrl_torch.common.safe_files import RunFolderError, open_own, replace_file, write_own
+
 
 @functools.cache
 def code_version() -> dict:
     """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
     from hrl_torch import __version__
+
     root = Path(__file__).resolve().parents[2]  # hrl_torch/training/runlog.py
     out = {"version": __version__, "commit": None, "dirty": None}
     try:
@@ -89,14 +92,32 @@ def hparams_of(**parts) -> dict:
 
 
 def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
-    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder."""
+    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder, made by this call.
+
+    Each name is tried with one ``mkdir`` that fails if anything (a folder, a file, a dangling
+    link) is there, then the next name: two processes or threads never get the same folder.
+
+    Raises:
+        RunFolderError: the folder cannot be made (its name too long, no space, no rights).
+    """
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path(root) / f"{domain}__{algo}__{stamp}"
-    path, k = base, 1
-    while path.exists():
-        path, k = Path(f"{base}-{k}"), k + 1
-    path.mkdir(parents=True)
-    return path
+    try:
+        Path(root).mkdir(parents=True, exist_ok=True)
+        for k in range(100_000):
+            path = base if k == 0 else Path(f"{base}-{k}")
+            try:
+                path.mkdir()
+                return path
+            except FileExistsError:
+                continue
+    except OSError as err:
+        what = err.strerror or type(err).__name__
+        raise RunFolderError(
+            f"cannot make a run folder in {str(root)[:60]}{'...' if len(str(root)) > 60 else ''}"
+            f" ({what}): choose a shorter or writable --out"
+        ) from err
+    raise RunFolderError(f"{root}: 100000 run folders named {base.name} exist; use another --out")
 
 
 class RunLogger:
@@ -132,7 +153,7 @@ class RunLogger:
                 if path.exists():
                     _drop_rows_after(path, resumed_at)
         if not self.csv_path.exists():
-            self.csv_path.write_text("step,seed,metric,value\n")
+            write_own(self.csv_path, PROGRESS_HEADER)
         self.writers = []
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
@@ -155,7 +176,7 @@ class RunLogger:
             resume.update({k: v for k, v in hparams.items() if original.get(k) != v})
             original.setdefault("resumes", []).append(resume)
             hparams = original
-        path.write_text(json.dumps(hparams, indent=2))
+        write_own(path, json.dumps(hparams, indent=2))
         return hparams
 
     def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
@@ -169,7 +190,7 @@ class RunLogger:
                 rows.append((step, seed, tag, f"{v:.6g}"))
                 if self.writers:
                     self.writers[k].add_scalar(tag, v, step)
-        with open(self.csv_path, "a", newline="") as f:
+        with open_own(self.csv_path, "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerows(rows)
 
     def log_episodes(self, step: int, records, node_names: Sequence[str]) -> None:
@@ -195,7 +216,7 @@ class RunLogger:
                     " ".join(names) + (" ..." if n > len(names) else ""),
                 )
             )
-        with open(self.episodes_path, "a", newline="") as f:
+        with open_own(self.episodes_path, "a", newline="") as f:
             writer = csv.writer(f, lineterminator="\n")
             if new:
                 writer.writerow(EPISODE_COLUMNS)
@@ -210,10 +231,11 @@ class RunLogger:
     def write_summary(self, summary: dict) -> Path:
         """Write ``summary.json``."""
         path = self.run_dir / "summary.json"
-        path.write_text(json.dumps(summary, indent=2, default=json_default))
+        write_own(path, json.dumps(summary, indent=2, default=json_default))
         return path
 
 
+PROGRESS_HEADER = "step,seed,metric,value\n"
 EPISODE_COLUMNS = (
     "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions"
 )  # fmt: skip
@@ -272,10 +294,7 @@ def _drop_rows_after(csv_path: Path, step: int) -> None:
         return
     header = rows[0]
     kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]
-    tmp = csv_path.with_suffix(".csv.tmp")
-    with open(tmp, "w", newline="") as f:
-        csv.writer(f, lineterminator="\n").writerows(kept)
-    tmp.replace(csv_path)
+    replace_file(csv_path, lambda f: csv.writer(f, lineterminator="\n").writerows(kept))
 
 
 def _step_of(row: list[str]) -> float:
