@@ -317,20 +317,36 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
         raise _failed(err, trainer, logger, run_dir, opts) from err
     wall = time.perf_counter() - start
     with StopOnSignal() as late:  # a signal now waits: the finished run's record is written
-        logger.close()
-        plots = plot_curves(
-            run_dir / "progress.csv",
-            trainer.evaluator.metrics,
-            run_dir,
-            title=f"{domain.name} / {algo}",
-            reference=domain.reference,
-            units=trainer.evaluator.units,
-        )
-        summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
-        if late.signal is not None:
-            summary["signal_after_training"] = late.signal
-        logger.write_summary(summary)
+        try:
+            logger.close()
+            plots = plot_curves(
+                run_dir / "progress.csv",
+                trainer.evaluator.metrics,
+                run_dir,
+                title=f"{domain.name} / {algo}",
+                reference=domain.reference,
+                units=trainer.evaluator.units,
+            )
+            summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
+            if late.signal is not None:
+                summary["signal_after_training"] = late.signal
+            logger.write_summary(summary)
+        except OSError as err:  # a full disk after training: the checkpoint is the run
+            raise record_unwritten(err, trainer.step, run_dir) from err
     return run_dir, summary
+
+
+def record_unwritten(err: OSError, step: int, run_dir: Path) -> RunFailed:
+    """A run trained to ``step`` whose plots or ``summary.json`` could not be written."""
+    where = f" writing {Path(err.filename).name}" if err.filename else ""
+    what = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    checkpoint = run_dir / "checkpoint.pt"
+    kept = (
+        f"its checkpoint {checkpoint} is kept (hrl-torch eval {run_dir} evaluates it)"
+        if checkpoint.exists()
+        else f"its logs are kept in {run_dir}"
+    )
+    return RunFailed(f"{what}{where} after training to step {step}; {kept}")
 
 
 def _failed(err: Exception, trainer, logger, run_dir: Path, opts: RunOptions) -> RunFailed:

@@ -198,7 +198,7 @@ class RunLogger:
 
         ``eval_episodes.csv`` gets the start's fields and the root's decisions by name.
         """
-        new = not self.episodes_path.exists()
+        new = not self.episodes_path.exists() or self.episodes_path.stat().st_size == 0
         rows = []
         for r in range(records.batch_size[0]):
             n = int(records["n_decisions"][r])
@@ -229,9 +229,17 @@ class RunLogger:
             w.close()
 
     def write_summary(self, summary: dict) -> Path:
-        """Write ``summary.json``."""
+        """Write ``summary.json``: valid JSON, a non-finite number as ``null``.
+
+        Such numbers are named under ``"not_finite"`` (``["per_seed[0].final_eval_return"]``):
+        a return of ``3e38`` per step overflows to ``inf``, which JSON cannot hold.
+        """
         path = self.run_dir / "summary.json"
-        write_own(path, json.dumps(summary, indent=2, default=json_default))
+        plain = json.loads(json.dumps(summary, default=json_default))
+        clean, bad = finite_only(plain)
+        if bad:
+            clean["not_finite"] = bad
+        write_own(path, json.dumps(clean, indent=2, allow_nan=False))
         return path
 
 
@@ -303,6 +311,22 @@ def _step_of(row: list[str]) -> float:
         return int(row[0])
     except ValueError:
         return math.inf
+
+
+def finite_only(value, where: str = "") -> tuple:
+    """``(value with every NaN or infinite float as None, the dotted places of those)``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None, [f"{where} ({value})"]
+    if isinstance(value, dict):
+        out, bad = {}, []
+        for k, v in value.items():
+            out[k], more = finite_only(v, f"{where}.{k}" if where else str(k))
+            bad += more
+        return out, bad
+    if isinstance(value, list):
+        pairs = [finite_only(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [p[0] for p in pairs], [b for p in pairs for b in p[1]]
+    return value, []
 
 
 def json_default(x):
