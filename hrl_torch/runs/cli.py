@@ -102,6 +102,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # ``hrl-torch list | head``: the reader left, nothing to report
         sys.stdout = open(os.devnull, "w")  # no flush error when Python exits
         return 0
+    except Exception as err:  # a user's code (env factory, graph) or a bug: one line, exit 1
+        if debug:
+            raise
+        from hrl_torch.runs.faults import report
+
+        return report(err)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -115,7 +121,9 @@ def _run(args: argparse.Namespace) -> int:
     from hrl_torch.common.limits import SizeLimitError
     from hrl_torch.common.safe_files import RunFolderError
     from hrl_torch.env.envcheck import EnvContractError
+    from hrl_torch.hierarchy.subtask import GraphError
     from hrl_torch.runs.experiment import format_summary, run_experiment
+    from hrl_torch.runs.faults import one_line
     from hrl_torch.runs.runlock import RunLockedError
 
     if args.command == "list":
@@ -146,9 +154,9 @@ def _run(args: argparse.Namespace) -> int:
         EnvContractError,
         RunFolderError,
         SizeLimitError,
-    ) as err:
-        # nothing changed yet
-        raise UserError.of(err) from err
+        GraphError,
+    ) as err:  # nothing changed yet
+        raise UserError(one_line(err, with_type=False)) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
     if summary["status"] == "interrupted":
