@@ -192,7 +192,8 @@ def _request(domain_name, algo, grid, seeds, steps, metric):
     from hrl_torch.runs.sizes import check_run_size
 
     # the grid's learners x their rows, before the population's tables are built below
-    check_run_size(domain, spec, n, spec.envs_per_learner, spec.train.eval_episodes)
+    base = domain.algos[algo]  # (its tables are the population's; one set of per-learner values)
+    check_run_size(domain, base, n, base.envs_per_learner, base.train.eval_episodes)
     try:  # the population's own learner: a value its learner cannot take per learner is refused
         spec.make_learner(spec.make_graph(), n)
         spec.make_exploration(spec.train)
