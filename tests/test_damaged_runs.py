@@ -150,3 +150,27 @@ def test_summary_json_stays_valid_json_and_names_what_was_not_finite(tmp_path):
     summary = json.loads(text)
     assert summary["per_seed"][0]["final_eval_return"] is None
     assert summary["not_finite"] == ["per_seed[0].final_eval_return (inf)", "threshold (nan)"]
+
+
+def test_a_sparse_tensor_of_another_shape_is_one_line_on_eval_and_resume(
+    original, tmp_path, capsys
+):
+    run_dir = tmp_path / "copy"
+    shutil.copytree(original, run_dir)
+    state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    key = next(iter(state["trainer"]["learner"]))
+    empty = torch.zeros(0, dtype=torch.int64)
+    state["trainer"]["learner"][key] = {  # a packed table of 2**20 entries: fits, but not the run
+        "__hrl_torch_sparse__": [2**20], "dtype": "float32",
+        "fill": torch.tensor(0, dtype=torch.int32), "index": empty, "values": empty.int(),
+    }  # fmt: skip
+    torch.save(state, run_dir / "checkpoint.pt")
+    before = snapshot(run_dir)
+    for command in (
+        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
+        ["eval", str(run_dir)],
+    ):
+        assert main(command) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith("hrl-torch: error: checkpoint does not fit this run: "), line
+    assert snapshot(run_dir) == before

@@ -4,6 +4,7 @@ atomically, and a checkpoint continues only its own run's folder."""
 import os
 import shutil
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -124,6 +125,13 @@ def test_a_dangling_link_at_the_next_run_folders_name_is_a_clash(tmp_path, monke
 
 def test_eight_threads_making_run_folders_at_once_each_get_their_own(tmp_path, monkeypatch):
     monkeypatch.setattr(runlog.time, "strftime", lambda fmt: "20260101-000000")
+    real_mkdir = Path.mkdir
+
+    def slow_mkdir(self, *args, **kwargs):  # widens any gap between a check and the mkdir
+        time.sleep(0.001)
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", slow_mkdir)
     made, errors = [], []
 
     def make():

@@ -4,6 +4,7 @@ user's file and line where the fault is in their code."""
 
 import json
 import textwrap
+import warnings
 from pathlib import Path
 
 import pytest
@@ -179,8 +180,10 @@ DOMAIN = domain("huge", make_env=lambda s, e, b="torch": Huge(s, e))
     out = path.parent / "runs"
     argv = ["--domain-module", "user_huge", "train", "huge", "--algo", "q", "--seeds", "2",
             "--steps", "400", "--no-progress", "--out", str(out), "--no-tensorboard"]  # fmt: skip
-    assert main(argv) == 0
-    assert "RuntimeWarning" not in capsys.readouterr().err
+    with warnings.catch_warnings():  # (numpy's "invalid value" had been printed on stderr)
+        warnings.simplefilter("error", RuntimeWarning)
+        assert main(argv) == 0
+    assert "Warning" not in capsys.readouterr().err
     (run_dir,) = out.iterdir()
     text = (run_dir / "summary.json").read_text()
     summary = json.loads(text)  # valid JSON: no Infinity, no NaN
@@ -238,3 +241,22 @@ def test_a_gymnasium_dict_observation_space_is_stacked_field_by_field():
 
     with pytest.raises(ValueError, match="stacks Box, Discrete or Dict observations, got Tuple"):
         GymnasiumBatchEnv(TupleObs, [0], 2)
+
+
+def test_an_observation_outside_a_tabulated_graphs_states_names_value_and_row(monkeypatch):
+    monkeypatch.syspath_prepend(str(PLUGIN))
+    import hrl_corridor as c
+    from tensordict import TensorDict
+
+    from hrl_torch.hierarchy.subtask import GraphError
+
+    def observations(state):
+        state = torch.as_tensor(state)
+        fields = {"pos": state % c.LENGTH, "carrying": state // c.LENGTH, "state": state}
+        return TensorDict(fields, batch_size=[len(state)])
+
+    graph = c.flat_graph()
+    graph.tabulate(observations(torch.arange(2 * c.LENGTH)), key="state")
+    assert graph.context(observations([3, 15])).abstract.shape == (2, graph.n_nodes)
+    with pytest.raises(GraphError, match="observation 'state' is 20 in env row 1, outside"):
+        graph.context(observations([3, 20]))

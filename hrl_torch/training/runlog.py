@@ -37,7 +37,6 @@ from hrl_torch.common.safe_files import RunFolderError, open_own, replace_file, 
 def code_version() -> dict:
     """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
     from hrl_torch import __version__
-
     root = Path(__file__).resolve().parents[2]  # hrl_torch/training/runlog.py
     out = {"version": __version__, "commit": None, "dirty": None}
     try:
@@ -152,7 +151,7 @@ class RunLogger:
             for path in (self.csv_path, self.episodes_path):
                 if path.exists():
                     _drop_rows_after(path, resumed_at)
-        if not self.csv_path.exists():
+        if not self.csv_path.exists() or self.csv_path.stat().st_size == 0:  # (0: cut at start)
             write_own(self.csv_path, PROGRESS_HEADER)
         self.writers = []
         if tensorboard:
