@@ -154,8 +154,10 @@ def _run(args: argparse.Namespace) -> int:
         RunFolderError,
         SizeLimitError,
         GraphError,
-    ) as err:  # nothing changed yet
-        raise UserError(one_line(err, with_type=False)) from err
+    ) as err:  # nothing changed yet (a user's graph: with their file:line)
+        raise (
+            UserError(one_line(err, False)) if isinstance(err, GraphError) else UserError.of(err)
+        ) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
     if summary["status"] == "interrupted":

@@ -43,6 +43,8 @@ def check_run_folder(run_dir: str | Path) -> dict | None:
         RunFolderError: naming the entry that is wrong and what to do.
     """
     run_dir = Path(run_dir)
+    if not run_dir.exists():
+        return None  # (no folder: the checkpoint's load says so)
     if not run_dir.is_dir():
         raise RunFolderError(f"{run_dir} is not a folder")
     check_tree(run_dir, entry_kind)
