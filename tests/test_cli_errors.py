@@ -99,15 +99,19 @@ def test_debug_shows_the_traceback():
         main([*BASE, "--seeds", "0", "--debug"])
 
 
-def test_a_failed_start_removes_the_run_folder_it_made(tmp_path, monkeypatch):
+def test_a_failed_start_removes_the_run_folder_it_made(tmp_path, monkeypatch, capsys):
     import hrl_torch.runs.experiment as experiment
 
     def broken(*args, **kwargs):
         raise RuntimeError("the env could not be built")
 
     monkeypatch.setattr(experiment, "build_trainer", broken)
-    with pytest.raises(RuntimeError, match="could not be built"):
-        main([*BASE, "--out", str(tmp_path)])
+    assert main([*BASE, "--out", str(tmp_path)]) == 1  # one line (docs/bad-input.md)
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("hrl-torch: error: RuntimeError: the env could not be built"), line
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(RuntimeError, match="could not be built"):  # --debug: the traceback
+        main([*BASE, "--out", str(tmp_path), "--debug"])
     assert not list(tmp_path.iterdir())
 
 

@@ -14,6 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
+from hrl_torch.common.limits import SizeLimitError
 from hrl_torch.common.signals import signals_deferred
 from hrl_torch.common.sparse_store import pack, unpack
 
@@ -33,6 +34,8 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
     packed = {"format": FORMAT, **pack(state)}
     with signals_deferred():  # a signal waits for the write: no stale .tmp, no half file
         try:
+            if tmp.is_symlink() or tmp.is_file():  # a link there is removed, not written through
+                tmp.unlink()
             torch.save(packed, tmp)
             os.replace(tmp, path)
         finally:  # a failed write leaves the previous checkpoint and no stale .tmp
@@ -62,6 +65,8 @@ def load_checkpoint(path: str | Path) -> dict:
         raise CheckpointError(f"{path} is not an {FORMAT} checkpoint (found {found!r})")
     try:
         return unpack(state)
+    except SizeLimitError as err:
+        raise CheckpointError(f"{path}: {err}") from err
     except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"{path} holds a damaged sparse tensor ({err})") from err
 

@@ -195,10 +195,19 @@ def replace(value, path: str, new, n_positional: int = 0):
     children = _branches(value, n_positional)
     if children is None or head not in children:
         raise KeyError(head)
-    child = replace(children[head], rest, new) if rest else new
+    child = replace(children[head], rest, new) if rest else _same_kind(head, children[head], new)
     if isinstance(value, Make):
         return value.with_argument(head, child)
     return dataclasses.replace(value, **{head: child})
+
+
+def _same_kind(name: str, old, new):
+    """``new`` if it is of ``old``'s kind: a flag for a flag, a number for a number."""
+    if isinstance(old, bool) and not isinstance(new, bool):
+        raise ValueError(f"{name} is a flag (now {old}): give true or false, got {new!r}")
+    if isinstance(old, int | float) and not isinstance(old, bool) and isinstance(new, bool):
+        raise ValueError(f"{name} is a number (now {old}), got {new!r}")
+    return new
 
 
 def split_name(name: str) -> list[str] | None:

@@ -234,3 +234,28 @@ def from_host(data, dtype: torch.dtype, device: torch.device | str) -> torch.Ten
     if device.type == "cuda":
         host = host.pin_memory()
     return host.to(device, non_blocking=True)
+
+
+def check_device(text) -> str:
+    """``text`` if it names a torch device this machine has (``meta`` too), else ``ValueError``.
+
+    ``'cuda:7'`` on a machine with one GPU is refused here, not by an ``AssertionError`` when
+    the first tensor moves.
+    """
+    if not isinstance(text, str | torch.device):
+        raise ValueError(f"device must be a torch device name, got {text!r}")
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError) as err:
+        raise ValueError(f"not a torch device: {text!r}") from err
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"{text}: no CUDA device on this machine")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(
+                f"{text}: this machine has {torch.cuda.device_count()} CUDA device(s) "
+                f"(cuda:0 to cuda:{torch.cuda.device_count() - 1})"
+            )
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError(f"{text}: this torch build has no usable MPS device")
+    return str(text)

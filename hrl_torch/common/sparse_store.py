@@ -68,12 +68,41 @@ def pack(state):
     return state
 
 
-def unpack(state):
-    """The inverse of ``pack``."""
+def declared_bytes(state) -> int:
+    """Bytes the packed tensors in ``state`` declare (their shapes), before any is built."""
+    if isinstance(state, dict):
+        if MARK in state:
+            shape = state[MARK]
+            if not isinstance(shape, list) or not all(
+                isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape
+            ):
+                raise ValueError(f"a packed tensor's shape is {str(shape)[:60]}")
+            return torch.Size(shape).numel() * _DTYPES[state["dtype"]].itemsize
+        return sum(declared_bytes(v) for v in state.values())
+    if isinstance(state, list | tuple):
+        return sum(declared_bytes(v) for v in state)
+    return 0
+
+
+def unpack(state, check_size: bool = True):
+    """The inverse of ``pack``.
+
+    First, unless ``check_size`` is off, the packed tensors' declared sizes are checked
+    against what this process may allocate (``hrl_torch.common.limits``): a checkpoint of a
+    few KB may declare a table of 2**40 entries.
+    """
+    if check_size:
+        from hrl_torch.common.limits import check_bytes
+
+        check_bytes(
+            "the checkpoint's packed tables (their declared shapes)",
+            declared_bytes(state),
+            "it was not written for this machine, or it was edited",
+        )
     if isinstance(state, dict):
         if MARK in state:
             return unpack_tensor(state)
-        return {k: unpack(v) for k, v in state.items()}
+        return {k: unpack(v, False) for k, v in state.items()}
     if isinstance(state, (list, tuple)):
-        return type(state)(unpack(v) for v in state)
+        return type(state)(unpack(v, False) for v in state)
     return state

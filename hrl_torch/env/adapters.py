@@ -26,7 +26,12 @@ class GymnasiumBatchEnv:
             ``seeds[p] * 100_003 + e`` and then continues its own generator.
         envs_per_learner: ``E``.
         decode: maps the stacked observations ``[B, ...]`` to the observation fields the
-            hierarchy reads (default: ``{"observation": obs}``).
+            hierarchy reads (default: ``{"observation": obs}``; a ``Dict`` observation space:
+            its fields, each stacked).
+
+    Raises:
+        ValueError: an action space other than ``Discrete``, or an observation space that
+            cannot be stacked (a ``Tuple``, a nested ``Dict``).
     """
 
     #: no counter-based random stream to restart (each gymnasium env keeps its own generator)
@@ -52,8 +57,30 @@ class GymnasiumBatchEnv:
         self.device = torch.device("cpu")
         self.envs = [make_env() for _ in range(self.batch_size)]
         space = self.envs[0].action_space
-        self.n_actions = int(space.n) if isinstance(space, gym.spaces.Discrete) else None
-        self.decode = decode or (lambda obs: {"observation": obs})
+        if not isinstance(space, gym.spaces.Discrete):
+            raise ValueError(
+                f"GymnasiumBatchEnv needs a Discrete action space (the hierarchy's primitives "
+                f"are action indices), got {space}: discretize it with a gymnasium "
+                "ActionWrapper, or write a BatchedEnv with action_bounds"
+            )
+        self.n_actions = int(space.n)
+        observed = self.envs[0].observation_space
+        if not isinstance(observed, gym.spaces.Box | gym.spaces.Discrete | gym.spaces.MultiDiscrete
+                          | gym.spaces.MultiBinary | gym.spaces.Dict):  # fmt: skip
+            raise ValueError(
+                f"GymnasiumBatchEnv stacks Box, Discrete or Dict observations, got {observed}: "
+                "wrap the env with gymnasium.wrappers.FlattenObservation"
+            )
+        self._keys = list(observed.spaces) if isinstance(observed, gym.spaces.Dict) else None
+        if self._keys is not None and any(
+            isinstance(observed[k], gym.spaces.Dict | gym.spaces.Tuple) for k in self._keys
+        ):
+            raise ValueError(
+                f"GymnasiumBatchEnv stacks a Dict of Box or Discrete fields, got {observed}: "
+                "wrap the env with gymnasium.wrappers.FlattenObservation"
+            )
+        default = (lambda obs: dict(obs)) if self._keys is not None else None
+        self.decode = decode or default or (lambda obs: {"observation": obs})
         self.done = torch.zeros(self.batch_size, dtype=torch.bool)
         self._obs: list = [None] * self.batch_size
 
@@ -100,7 +127,11 @@ class GymnasiumBatchEnv:
         )
 
     def _output(self, reward, terminated, truncated, is_init) -> TensorDict:
-        fields = self.decode(torch.as_tensor(np.stack(self._obs)))
+        if self._keys is not None:  # a Dict space: each field stacked on its own
+            stacked = {k: torch.as_tensor(np.stack([o[k] for o in self._obs])) for k in self._keys}
+        else:
+            stacked = torch.as_tensor(np.stack(self._obs))
+        fields = self.decode(stacked)
         fields.update(
             reward=reward.float(),
             duration=(~is_init).float(),

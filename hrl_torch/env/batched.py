@@ -153,6 +153,11 @@ class BatchedEnv:
             raise ValueError(
                 f"action must have shape [{self.batch_size}], got {tuple(action.shape)}"
             )
+        if action.is_floating_point() or action.dtype == torch.bool or action.is_complex():
+            raise ValueError(
+                f"actions of {type(self).__name__} are integer indices into [0, "
+                f"{self.n_actions}) (torch.long), got {action.dtype}"
+            )
         if self.deferred_action is not None:  # (no read: raised at the trainer's next read)
             inside = action.clamp(0, self.n_actions - 1)  # (a bad row's action: ignored)
             self.deferred_action.record((inside != action) & ~self.done, action=action)

@@ -235,14 +235,24 @@ class TaskGraph(KeepsHostCopies, nn.Module):
     def _tabulated_context(self, obs: TensorDict, learner: torch.Tensor) -> StepContext:
         """``context`` of a tabulated graph: every field looked up by the state."""
         s = obs[self._table_key]
-        features = lookup(self.tab_features, s) if self.max_features else None
+        try:
+            features = lookup(self.tab_features, s) if self.max_features else None
+            fields = (lookup(self.tab_abstract, s), lookup(self.tab_terminated, s),
+                      lookup(self.tab_blocked, s), lookup(self.tab_available, s))  # fmt: skip
+        except IndexError as err:  # (raised at once on the CPU): which value, which row
+            n = self.tab_abstract.shape[0]
+            bad = ((s < 0) | (s >= n)).nonzero()
+            if not len(bad):
+                raise
+            row = int(bad[0, 0])
+            raise GraphError(
+                f"observation {self._table_key!r} is {int(s[row])} in env row {row}, outside "
+                f"[0, {n}), the states the graph was tabulated over"
+            ) from err
         return StepContext(
             obs,
             learner,
-            lookup(self.tab_abstract, s),
-            lookup(self.tab_terminated, s),
-            lookup(self.tab_blocked, s),
-            lookup(self.tab_available, s),
+            *fields,
             features,
             table_row=s,
         )
@@ -374,6 +384,7 @@ def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=No
     (A tensor a subtask makes on the CPU would otherwise fail later, deep inside the step, or
     copy to the GPU at every step; the check reads no data.)
     """
+    b = batch_and_device(obs)[0]
 
     def value_of(k: int) -> torch.Tensor:
         if method == "abstract":
@@ -389,6 +400,12 @@ def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=No
                 f"returned {got}, the run is on {device}: return a tensor made from the "
                 f"observation's (torch.ones_like(...), device=obs[key].device; module-level "
                 f"tables via devices.constant_on)"
+            )
+        if value.shape != (b,):
+            raise GraphError(
+                f"{graph.names[k]!r}.{method} ({_source_of(graph.nodes[k], method)}) returned "
+                f"shape {list(value.shape)}, expected [{b}]: one value per env row (a [B, 1] "
+                "result: .squeeze(-1))"
             )
         return value
 

@@ -152,6 +152,15 @@ class EpsilonGreedy:
 
     def __init__(self, epsilon: float | Schedule) -> None:
         self.epsilon = as_schedule(epsilon)
+        for name in ("value", "start", "end"):  # a probability at every step
+            v = getattr(self.epsilon, name, None)
+            if v is None or isinstance(v, bool) or not isinstance(v, int | float | torch.Tensor):
+                continue
+            low, high = (float(v.min()), float(v.max())) if torch.is_tensor(v) else (v, v)
+            if not 0.0 <= low <= high <= 1.0:  # (NaN fails too)
+                shown = v if not torch.is_tensor(v) else f"[{low}, {high}]"
+                where = "epsilon" if name == "value" else f"epsilon.{name}"
+                raise ValueError(f"EpsilonGreedy: {where} must be in [0, 1], got {shown}")
 
     def select(
         self,

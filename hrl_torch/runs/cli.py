@@ -115,6 +115,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # ``hrl-torch list | head``: the reader left, nothing to report
         sys.stdout = open(os.devnull, "w")  # no flush error when Python exits
         return 0
+    except Exception as err:  # a user's code (env factory, graph) or a bug: one line, exit 1
+        if debug:
+            raise
+        from hrl_torch.runs.faults import report
+
+        return report(err)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -125,8 +131,12 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
     from hrl_torch.common.checkpoint import CheckpointError
+    from hrl_torch.common.limits import SizeLimitError
+    from hrl_torch.common.safe_files import RunFolderError
     from hrl_torch.env.envcheck import EnvContractError
+    from hrl_torch.hierarchy.subtask import GraphError
     from hrl_torch.runs.experiment import format_summary, run_experiment
+    from hrl_torch.runs.faults import one_line
     from hrl_torch.runs.runlock import RunLockedError
 
     if args.command == "list":
@@ -151,8 +161,17 @@ def _run(args: argparse.Namespace) -> int:
         return 0  # a finished run: nothing to do
     try:
         run_dir, summary = run_experiment(domain, algo, opts)
-    except (RunLockedError, CheckpointError, EnvContractError) as err:  # nothing changed yet
-        raise UserError.of(err) from err
+    except (
+        RunLockedError,
+        CheckpointError,
+        EnvContractError,
+        RunFolderError,
+        SizeLimitError,
+        GraphError,
+    ) as err:  # nothing changed yet (a user's graph: with their file:line)
+        raise (
+            UserError(one_line(err, False)) if isinstance(err, GraphError) else UserError.of(err)
+        ) from err
     print(format_summary(summary))
     print(f"run folder: {run_dir}")
     if summary["status"] == "interrupted":

@@ -30,17 +30,12 @@ class _Parser(argparse.ArgumentParser):
 
 def device(text: str) -> str:
     """A torch device that exists on this machine (``--device``); ``meta`` is accepted."""
-    import torch
+    from hrl_torch.common.devices import check_device
 
     try:
-        dev = torch.device(text)
-    except RuntimeError as err:
-        raise argparse.ArgumentTypeError(f"not a torch device: {text!r}") from err
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise argparse.ArgumentTypeError(f"{text}: no CUDA device on this machine")
-    if dev.type == "mps" and not torch.backends.mps.is_available():
-        raise argparse.ArgumentTypeError(f"{text}: this torch build has no usable MPS device")
-    return text
+        return check_device(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
 
 
 def parser(version: str) -> argparse.ArgumentParser:

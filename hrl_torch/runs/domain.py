@@ -175,6 +175,9 @@ def _with(spec: AlgoSpec, name: str, value) -> AlgoSpec:
         if isinstance(value, bool) or not isinstance(value, kinds):
             what = "a number" if name == "threshold" else "a whole number"
             raise ValueError(f"{name} must be {what}, got {value!r}")
+        low = 1 if name in ("steps", "log_every", "eval_max_steps", "envs_per_learner") else 0
+        if name != "threshold" and value < low:
+            raise ValueError(f"{name} must be a whole number >= {low}, got {value!r}")
         if name == "envs_per_learner":
             return dataclasses.replace(spec, envs_per_learner=value)
         return dataclasses.replace(spec, train=dataclasses.replace(spec.train, **{name: value}))

@@ -19,6 +19,7 @@ import torch
 from hrl_torch import __version__
 from hrl_torch.common.checkpoint import load_checkpoint
 from hrl_torch.common.config import same
+from hrl_torch.common.devices import check_device
 from hrl_torch.common.rng import check_seeds
 from hrl_torch.common.signals import StopOnSignal
 from hrl_torch.env.envcheck import check_env
@@ -28,13 +29,12 @@ from hrl_torch.runs import registry
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.runs.failures import RunFailed
 from hrl_torch.runs.plots import plot_curves
+from hrl_torch.runs.run_record import check_belongs, validate_run_record
 from hrl_torch.runs.runlock import RunLock
+from hrl_torch.runs.sizes import MAX_ROWS, check_rows, check_run_size  # noqa: F401 (MAX_ROWS re-exported)
+from hrl_torch.training.runfolder import check_run_folder
 from hrl_torch.training.runlog import RunLogger, code_version, hparams_of, make_run_dir, settings_of
 from hrl_torch.training.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
-
-#: the most env rows (seeds x envs per seed) a run may ask for: a typo's 10**7 envs per seed
-#: was killed by the kernel's out-of-memory killer, not refused
-MAX_ROWS = 2**24
 
 
 @dataclass
@@ -96,17 +96,18 @@ class RunOptions:
         at_least |= {"eval_episodes": 0, "checkpoint_every": 0}
         for name, low in at_least.items():
             value = vars(self)[name]
-            if value is not None and (isinstance(value, bool) or value < low):
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int) or value < low
+            ):
                 raise ValueError(f"RunOptions.{name} must be an integer >= {low}, got {value!r}")
         if not str(self.out).strip():
             raise ValueError("RunOptions.out must name a folder, got an empty string")
-        rows = len(self.seeds) * (self.envs_per_learner or 1)
-        if rows > MAX_ROWS:
-            raise ValueError(
-                f"{len(self.seeds)} seeds x {self.envs_per_learner} envs per seed = {rows:,} env "
-                f"rows, more than {MAX_ROWS:,} (each row keeps kilobytes of state: this machine "
-                "would run out of memory); use fewer envs per seed"
-            )
+        check_device(self.device)
+        n = len(self.seeds)
+        check_rows(f"{n} seeds x {self.envs_per_learner} envs per seed",
+                   n * (self.envs_per_learner or 1), "use fewer envs per seed")  # fmt: skip
+        check_rows(f"{n} seeds x {self.eval_episodes} evaluation episodes",
+                   n * (self.eval_episodes or 0), "use fewer evaluation episodes")  # fmt: skip
 
 
 #: what a checkpoint records of its run, besides the domain and algorithm
@@ -229,8 +230,10 @@ def continue_options(checkpoint: str, run: dict, **changes) -> RunOptions:
     ``changes`` may name the ``domain`` and ``algo`` (they must be the run's) and set any
     ``RunOptions`` field: ``steps`` and ``checkpoint_every`` to new values (a longer budget
     continues with the original schedules), the display options freely; every other option
-    must equal the run's, else ``ValueError`` names it.
+    must equal the run's, else ``ValueError`` names it. A record that is not of its fields'
+    types and ranges is refused first (``run_record.validate_run_record``: ``CheckpointError``).
     """
+    validate_run_record(checkpoint, run)
     recorded = {"settings": {}} | {k: run[k] for k in ("domain", "algo", *RUN_KEYS) if k in run}
     for key, value in changes.items():
         if key in recorded and key not in CONTINUE_KEYS and not same(value, recorded[key]):
@@ -277,11 +280,29 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
             opts.resume, recorded_run(state["run"]), **_given(domain, algo, opts)
         )
     spec = algo_spec(domain, algo, opts)
+    if opts.resume:  # a folder of links or of another run is refused before anything is built
+        check_belongs(
+            opts.resume, (state or {}).get("run", {}), check_run_folder(Path(opts.resume).parent)
+        )
+    check_size(domain, spec, opts)
     if opts.check_env:
         check_domain_env(domain, algo, opts.backend)
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
     with RunLock(run_dir):  # one writer per folder, before anything in it changes
         return _run_locked(domain, algo, opts, spec, state, run_dir)
+
+
+def check_size(domain: DomainSpec, spec: AlgoSpec, opts: RunOptions) -> None:
+    """``sizes.check_run_size`` of the run ``opts`` asks for (``SizeLimitError``)."""
+    check_run_size(
+        domain,
+        spec,
+        len(opts.seeds),
+        opts.envs_per_learner or spec.envs_per_learner,
+        _train_config(spec, opts).eval_episodes,
+        opts.backend,
+        tensorboard_writers=len(opts.seeds) if opts.tensorboard else 0,
+    )
 
 
 def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: Path):
@@ -303,20 +324,36 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
         raise _failed(err, trainer, logger, run_dir, opts) from err
     wall = time.perf_counter() - start
     with StopOnSignal() as late:  # a signal now waits: the finished run's record is written
-        logger.close()
-        plots = plot_curves(
-            run_dir / "progress.csv",
-            trainer.evaluator.metrics,
-            run_dir,
-            title=f"{domain.name} / {algo}",
-            reference=domain.reference,
-            units=trainer.evaluator.units,
-        )
-        summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
-        if late.signal is not None:
-            summary["signal_after_training"] = late.signal
-        logger.write_summary(summary)
+        try:
+            logger.close()
+            plots = plot_curves(
+                run_dir / "progress.csv",
+                trainer.evaluator.metrics,
+                run_dir,
+                title=f"{domain.name} / {algo}",
+                reference=domain.reference,
+                units=trainer.evaluator.units,
+            )
+            summary = _summary(domain, algo, opts, trainer, result, wall, plots, run_dir)
+            if late.signal is not None:
+                summary["signal_after_training"] = late.signal
+            logger.write_summary(summary)
+        except OSError as err:  # a full disk after training: the checkpoint is the run
+            raise record_unwritten(err, trainer.step, run_dir) from err
     return run_dir, summary
+
+
+def record_unwritten(err: OSError, step: int, run_dir: Path) -> RunFailed:
+    """A run trained to ``step`` whose plots or ``summary.json`` could not be written."""
+    where = f" writing {Path(err.filename).name}" if err.filename else ""
+    what = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    checkpoint = run_dir / "checkpoint.pt"
+    kept = (
+        f"its checkpoint {checkpoint} is kept (hrl-torch eval {run_dir} evaluates it)"
+        if checkpoint.exists()
+        else f"its logs are kept in {run_dir}"
+    )
+    return RunFailed(f"{what}{where} after training to step {step}; {kept}")
 
 
 def _failed(err: Exception, trainer, logger, run_dir: Path, opts: RunOptions) -> RunFailed:
@@ -422,20 +459,34 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     ``DEFAULT_EVAL_EPISODES`` for a run trained with none). Nothing is written.
     """
     path = Path(run_dir) / "checkpoint.pt"
+    hparams = check_run_folder(run_dir)  # no links, nothing of the wrong kind
     state = load_checkpoint(path)
     if "run" not in state:
         raise ValueError(f"{path} records no run configuration (written by an older hrl-torch)")
     run = recorded_run(state["run"])
     opts = continue_options(path, run, progress=False, tensorboard=False)
+    check_belongs(path, run, hparams)
     if episodes is not None or not opts.eval_episodes:  # a run trained without evaluation
         opts.eval_episodes = episodes or DEFAULT_EVAL_EPISODES
     domain = registry.get(run["domain"])
+    check_size(domain, algo_spec(domain, run["algo"], opts), opts)
     trainer = build_trainer(domain, run["algo"], opts)
-    trainer.learner.load_state_dict(state["trainer"]["learner"])
+    load_learner(trainer, state)
     trainer.step = int(state["trainer"]["step"])
     if trainer.evaluator.continuing:  # continuing: greedy throughput per seed
         return trainer, None
     return trainer, trainer.evaluate_episodes()
+
+
+def load_learner(trainer: Trainer, state: dict) -> None:
+    """Restore a checkpoint's learner tables into ``trainer`` (``CheckpointError`` if unfit)."""
+    from hrl_torch.common.checkpoint import CheckpointError
+
+    try:
+        trainer.learner.load_state_dict(state["trainer"]["learner"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        what = "; ".join(line.strip() for line in str(err).splitlines() if line.strip())
+        raise CheckpointError(f"checkpoint does not fit this run: {what[:300]}") from err
 
 
 def _given(domain: DomainSpec, algo: str, opts: RunOptions) -> dict:

@@ -52,12 +52,13 @@ def iqm_interval(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per column of ``matrix [seeds, points]``: IQM and its 95% bootstrap interval (lo, hi).
 
-    Seeds missing a point (NaN) are left out of that point; a point no seed has is NaN.
+    Seeds missing a point (NaN), or whose value there is infinite (a return that overflowed;
+    summary.json names it), are left out of that point; a point no seed has is NaN.
     """
     rng = np.random.default_rng(seed)
     center, lo, hi = (np.full(matrix.shape[1], np.nan) for _ in range(3))
     for j in range(matrix.shape[1]):
-        x = matrix[:, j][~np.isnan(matrix[:, j])]
+        x = matrix[:, j][np.isfinite(matrix[:, j])]
         if x.size == 0:
             continue
         resampled = x[rng.integers(0, x.size, (samples, x.size))]

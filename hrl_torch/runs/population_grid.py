@@ -189,6 +189,11 @@ def _request(domain_name, algo, grid, seeds, steps, metric):
     configs = configurations(grid)
     n = len(configs) * len(seeds)
     spec = with_values(domain.algos[algo], population_values(configs, len(seeds)))
+    from hrl_torch.runs.sizes import check_run_size
+
+    # the grid's learners x their rows, before the population's tables are built below
+    base = domain.algos[algo]  # (its tables are the population's; one set of per-learner values)
+    check_run_size(domain, base, n, base.envs_per_learner, base.train.eval_episodes)
     try:  # the population's own learner: a value its learner cannot take per learner is refused
         spec.make_learner(spec.make_graph(), n)
         spec.make_exploration(spec.train)

@@ -37,6 +37,8 @@ def register(name: str, entry: str | DomainSpec, source: str = "built-in") -> No
     """
     if isinstance(entry, str) and ":" not in entry:
         raise ValueError(f"entry must look like 'module:attribute', got {entry!r}")
+    if isinstance(entry, DomainSpec) and entry.name != name:
+        raise ValueError(_misnamed(name, entry.name, source))
     if name in _DOMAINS and _same(_DOMAINS[name], entry):
         return  # registered already, under its first source
     if name in _DOMAINS:
@@ -169,7 +171,18 @@ def get(name: str) -> DomainSpec:
         ) from err
     if not isinstance(spec, DomainSpec):
         raise ValueError(f"domain {name!r} ({_SOURCES[name]}): {entry} is not a DomainSpec")
+    if spec.name != name:
+        raise ValueError(_misnamed(name, spec.name, _SOURCES[name]))
     return spec.with_registered_algorithms()
+
+
+def _misnamed(name: str, spec_name: str, source: str) -> str:
+    """Why a domain registered under another name than its spec's is refused."""
+    return (
+        f"domain {name!r} ({source}) is a DomainSpec named {spec_name!r}: a checkpoint records "
+        f"the spec's name, so --resume would not find it; register it as {spec_name!r} (or "
+        f"name the spec {name!r})"
+    )
 
 
 def _same(a: str | DomainSpec, b: str | DomainSpec) -> bool:

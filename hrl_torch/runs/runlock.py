@@ -5,13 +5,16 @@ a resume in ``hparams.json``. The run takes ``flock(LOCK_EX | LOCK_NB)`` on ``RU
 before it changes anything in the folder; a second writer is refused with the holder's pid and
 changes nothing. The operating system drops the lock when the holder exits, however it exits
 (``kill -9`` included), so no stale lock outlives a crash. Where ``fcntl`` does not exist
-(Windows) runs are not locked.
+(Windows) runs are not locked. A link at ``.lock`` is refused, not written through
+(``hrl_torch.common.safe_files``).
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+
+from hrl_torch.common.safe_files import open_own
 
 LOCK_NAME = ".lock"
 
@@ -32,7 +35,7 @@ class RunLock:
             import fcntl
         except ImportError:  # no flock on this platform
             return self
-        handle = open(self.path, "a+")  # held open while the run lives
+        handle = open_own(self.path, "a+")  # held open while the run lives; no link followed
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hrl_torch.common.safe_files import RunFolderError, open_own, replace_file, write_own
+
 
 @functools.cache
 def code_version() -> dict:
@@ -89,14 +91,32 @@ def hparams_of(**parts) -> dict:
 
 
 def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
-    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder."""
+    """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder, made by this call.
+
+    Each name is tried with one ``mkdir`` that fails if anything (a folder, a file, a dangling
+    link) is there, then the next name: two processes or threads never get the same folder.
+
+    Raises:
+        RunFolderError: the folder cannot be made (its name too long, no space, no rights).
+    """
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path(root) / f"{domain}__{algo}__{stamp}"
-    path, k = base, 1
-    while path.exists():
-        path, k = Path(f"{base}-{k}"), k + 1
-    path.mkdir(parents=True)
-    return path
+    try:
+        Path(root).mkdir(parents=True, exist_ok=True)
+        for k in range(100_000):
+            path = base if k == 0 else Path(f"{base}-{k}")
+            try:
+                path.mkdir()
+                return path
+            except FileExistsError:
+                continue
+    except OSError as err:
+        what = err.strerror or type(err).__name__
+        raise RunFolderError(
+            f"cannot make a run folder in {str(root)[:60]}{'...' if len(str(root)) > 60 else ''}"
+            f" ({what}): choose a shorter or writable --out"
+        ) from err
+    raise RunFolderError(f"{root}: 100000 run folders named {base.name} exist; use another --out")
 
 
 class RunLogger:
@@ -131,8 +151,8 @@ class RunLogger:
             for path in (self.csv_path, self.episodes_path):
                 if path.exists():
                     _drop_rows_after(path, resumed_at)
-        if not self.csv_path.exists():
-            self.csv_path.write_text("step,seed,metric,value\n")
+        if not self.csv_path.exists() or self.csv_path.stat().st_size == 0:  # (0: cut at start)
+            write_own(self.csv_path, PROGRESS_HEADER)
         self.writers = []
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
@@ -155,7 +175,7 @@ class RunLogger:
             resume.update({k: v for k, v in hparams.items() if original.get(k) != v})
             original.setdefault("resumes", []).append(resume)
             hparams = original
-        path.write_text(json.dumps(hparams, indent=2))
+        write_own(path, json.dumps(hparams, indent=2))
         return hparams
 
     def log(self, step: int, per_seed: dict[str, Sequence[float]]) -> None:
@@ -169,7 +189,7 @@ class RunLogger:
                 rows.append((step, seed, tag, f"{v:.6g}"))
                 if self.writers:
                     self.writers[k].add_scalar(tag, v, step)
-        with open(self.csv_path, "a", newline="") as f:
+        with open_own(self.csv_path, "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerows(rows)
 
     def log_episodes(self, step: int, records, node_names: Sequence[str]) -> None:
@@ -177,7 +197,7 @@ class RunLogger:
 
         ``eval_episodes.csv`` gets the start's fields and the root's decisions by name.
         """
-        new = not self.episodes_path.exists()
+        new = not self.episodes_path.exists() or self.episodes_path.stat().st_size == 0
         rows = []
         for r in range(records.batch_size[0]):
             n = int(records["n_decisions"][r])
@@ -195,7 +215,7 @@ class RunLogger:
                     " ".join(names) + (" ..." if n > len(names) else ""),
                 )
             )
-        with open(self.episodes_path, "a", newline="") as f:
+        with open_own(self.episodes_path, "a", newline="") as f:
             writer = csv.writer(f, lineterminator="\n")
             if new:
                 writer.writerow(EPISODE_COLUMNS)
@@ -208,12 +228,21 @@ class RunLogger:
             w.close()
 
     def write_summary(self, summary: dict) -> Path:
-        """Write ``summary.json``."""
+        """Write ``summary.json``: valid JSON, a non-finite number as ``null``.
+
+        Such numbers are named under ``"not_finite"`` (``["per_seed[0].final_eval_return"]``):
+        a return of ``3e38`` per step overflows to ``inf``, which JSON cannot hold.
+        """
         path = self.run_dir / "summary.json"
-        path.write_text(json.dumps(summary, indent=2, default=json_default))
+        plain = json.loads(json.dumps(summary, default=json_default))
+        clean, bad = finite_only(plain)
+        if bad:
+            clean["not_finite"] = bad
+        write_own(path, json.dumps(clean, indent=2, allow_nan=False))
         return path
 
 
+PROGRESS_HEADER = "step,seed,metric,value\n"
 EPISODE_COLUMNS = (
     "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions"
 )  # fmt: skip
@@ -272,10 +301,7 @@ def _drop_rows_after(csv_path: Path, step: int) -> None:
         return
     header = rows[0]
     kept = [header, *(r for r in rows[1:] if len(r) == len(header) and _step_of(r) <= step)]
-    tmp = csv_path.with_suffix(".csv.tmp")
-    with open(tmp, "w", newline="") as f:
-        csv.writer(f, lineterminator="\n").writerows(kept)
-    tmp.replace(csv_path)
+    replace_file(csv_path, lambda f: csv.writer(f, lineterminator="\n").writerows(kept))
 
 
 def _step_of(row: list[str]) -> float:
@@ -284,6 +310,22 @@ def _step_of(row: list[str]) -> float:
         return int(row[0])
     except ValueError:
         return math.inf
+
+
+def finite_only(value, where: str = "") -> tuple:
+    """``(value with every NaN or infinite float as None, the dotted places of those)``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None, [f"{where} ({value})"]
+    if isinstance(value, dict):
+        out, bad = {}, []
+        for k, v in value.items():
+            out[k], more = finite_only(v, f"{where}.{k}" if where else str(k))
+            bad += more
+        return out, bad
+    if isinstance(value, list):
+        pairs = [finite_only(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [p[0] for p in pairs], [b for p in pairs for b in p[1]]
+    return value, []
 
 
 def json_default(x):

@@ -88,6 +88,12 @@ class Trainer:
         self.config = config or TrainConfig()
         self.executor_config = executor_config or ExecutorConfig()
         self.eval_env, self.logger = eval_env, logger
+        if eval_env is not None and eval_env.n_learners != env.n_learners:
+            raise ValueError(
+                f"the eval env has {eval_env.n_learners} learners (seeds), the training env "
+                f"{env.n_learners}: build it with one seed per learner ([eval_seed] * "
+                f"{env.n_learners}), eval_episodes rows each"
+            )
         self.agents = checked_factory(agent_factory, env, learner, graph)
         self.P, self.E = env.n_learners, env.envs_per_learner
         self.agent = self.make_agent(env, "explore")
@@ -179,7 +185,11 @@ class Trainer:
         with StopOnSignal() as stop:  # the final evaluation and save included
             while self.step < total and stop.signal is None:
                 t0 = time.perf_counter()
-                self.train_step()
+                try:
+                    self.train_step()
+                except IndexError:  # an index out of range (CPU): the deferred check names it
+                    raise_pending(self.deferred)
+                    raise
                 self.counters.train_seconds += time.perf_counter() - t0
                 bar.update(self.E)
                 self._after_step(cfg, run_dir)
