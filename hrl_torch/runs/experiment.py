@@ -465,7 +465,7 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
         raise ValueError(f"{path} records no run configuration (written by an older hrl-torch)")
     run = recorded_run(state["run"])
     opts = continue_options(path, run, progress=False, tensorboard=False)
-    check_belongs(path, run, hparams)
+    check_belongs(path, state["run"], hparams)  # (both as the run wrote them)
     if episodes is not None or not opts.eval_episodes:  # a run trained without evaluation
         opts.eval_episodes = episodes or DEFAULT_EVAL_EPISODES
     domain = registry.get(run["domain"])
