@@ -161,3 +161,19 @@ def group_of_rows(index: torch.Tensor) -> torch.Tensor:
     starts = torch.ones_like(value, dtype=torch.long)
     starts[1:] = value[1:] != value[:-1]
     return torch.empty_like(order).scatter_(0, order, starts.cumsum(0) - 1)
+
+
+def mark_learner_rows(rows: torch.Tensor, host_rows: torch.Tensor) -> None:
+    """Note on ``rows [B]`` (each row's learner) how they are laid out, read from ``host_rows``.
+
+    ``host_rows`` holds the same values on the CPU (read here once, so that a learner on any
+    device needs no read): ``rows.distinct_rows`` (every row another learner: no two rows
+    share a table entry) and ``rows.learner_blocks``: ``P`` when the rows are ``P`` blocks of
+    equal size in learner order (row ``b`` of learner ``b // E``: neural heads batch over the
+    population), else 0.
+    """
+    b = host_rows.numel()
+    rows.distinct_rows = host_rows.unique().numel() == b
+    p = int(host_rows.max()) + 1 if b else 0
+    major = b and b % p == 0 and torch.equal(host_rows.cpu(), torch.arange(b) // (b // p))
+    rows.learner_blocks = p if major else 0

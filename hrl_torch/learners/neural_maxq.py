@@ -1,0 +1,279 @@
+"""MAXQ-Q with neural completions: ``C(i, s, a)`` an MLP per subtask, trained by autograd.
+
+The values and targets are MAXQ-Q's (``hrl_torch.learners.maxq``, Dietterich 2000, Table 4)::
+
+    Q(i, s, a) = V(a, s) + C(i, s, a),   V(i, s) = Q(i, s, a*)      (Equations 3.5, 3.6)
+    C(i, s, a)  <- gamma^N [C(i, s', a*) + V(a*, s')]              (Table 4, the C line)
+    C~(i, s, a) <- R~ + gamma^N [R~_i(s') or C~(i, s', a*) + V(a*, s')]
+    V(a, s)     <- (1-alpha) V + alpha r                            (primitive a: a table)
+
+Where the table moves ``C`` a step ``alpha`` toward its target, here the completions of every
+non-primitive node are the outputs of a small MLP over the node's abstract state (one-hot or
+factored units, ``hrl_torch.modules.neural``), and each learner takes ``updates`` Adam steps
+per env step on its mean squared TD error over the transitions that finished::
+
+    L_p(theta_p) = mean over finished (i, s, a) of learner p of 1/2 (C_theta(i, s, a) - target)^2
+
+(the semi-gradient: the target, computed from the values ``evaluate`` made at ``s'``, is a
+constant). Without a separate target network: at taxi's size the values ``evaluate`` made at
+``s'`` this step serve (measured in docs/neural-heads.md).
+
+The network is one ``StackedMLP`` over every (learner, node): ``evaluate`` is one forward over
+all rows and nodes, ``update`` one forward (and backward) per Adam step, whatever the
+population size. Rows are learner-major with equal counts (row ``b`` of ``B = P * E`` belongs
+to learner ``b // E``: the executor's, the evaluations' and ``FrozenValues``' layout).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+
+from hrl_torch.common.ops import (
+    argmax_last,
+    columns,
+    entries,
+    lookup,
+    mark_learner_rows,
+    take_flat,
+)
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
+from hrl_torch.hierarchy.graph import StepContext, TaskGraph
+from hrl_torch.hierarchy.subtask import GraphError
+from hrl_torch.learners.base import TabularLearner, finished
+from hrl_torch.learners.maxq import MaxQLearner
+from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.heads import attach_table_heads
+from hrl_torch.modules.neural import (
+    NeuralCompletionHead,
+    StackedAdam,
+    StackedMLP,
+    factored_features,
+    one_hot_features,
+)
+
+
+def learner_blocks(learner: torch.Tensor) -> int:
+    """``P`` when rows ``learner [B]`` are ``P`` blocks of equal size in learner order, else 0.
+
+    Known for the executor's rows (``common.ops.mark_learner_rows``, read on the CPU); other
+    row tensors are read once (an evaluation's or analysis helper's, made outside the step).
+    """
+    if "learner_blocks" not in vars(learner):
+        if learner.device.type == "meta":  # (no data to read: the general path, always right)
+            return 0
+        mark_learner_rows(learner, learner.cpu())
+    return learner.learner_blocks
+
+
+def learner_rows(learner: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """``learner [B]`` repeated over ``like``'s trailing dimensions, flattened."""
+    shape = (learner.shape[0],) + (1,) * (like.dim() - 1)
+    return learner.view(shape).expand_as(like).reshape(-1)
+
+
+class NeuralMaxQLearner(TabularLearner):
+    """MAXQ-Q whose completions are MLPs (one per learner and subtask), the leaves' ``V`` tables.
+
+    Args:
+        graph: the task graph.
+        n_learners: population size ``P``.
+        alpha: step size of the primitives' ``V`` tables (number or schedule).
+        gamma: discount factor.
+        lr: Adam's step size for the completion networks.
+        hidden: hidden widths of every node's MLP.
+        encoding: ``"onehot"`` (a unit per abstract state) or ``"factored"`` (a unit per
+            digit of the state in ``radices``).
+        radices: for ``"factored"``, each subtask's mixed radices by name (e.g. ``{"Get":
+            (5, 5, 5)}``); subtasks not named are one-hot.
+        init: the completions' initial value (the output layer starts at it exactly).
+        init_seed: seed of the hidden layers' initial weights (the same for every learner).
+        updates: Adam steps per env step on each step's transitions.
+    """
+
+    uses = frozenset()
+    value_keys = ("V", "V_int", "Q")
+    targets = MaxQLearner.targets  # (Dietterich's Table 4 targets, shared with the tables)
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        alpha: float | Schedule = 0.5,
+        gamma: float = 1.0,
+        lr: float = 0.01,
+        hidden: Sequence[int] = (64,),
+        encoding: str = "onehot",
+        radices: Mapping[str, Sequence[int]] | None = None,
+        init: float = 0.0,
+        init_seed: int = 0,
+        updates: int = 1,
+    ) -> None:
+        super().__init__(graph, n_learners, alpha, gamma, per_instance=False)
+        if encoding not in ("onehot", "factored"):
+            raise ValueError(f"encoding must be 'onehot' or 'factored', got {encoding!r}")
+        if int(updates) < 1:
+            raise ValueError(f"updates must be >= 1, got {updates}")
+        self.updates = int(updates)
+        self.internal = bool(graph.internal_nodes)
+        lay, plan = self.layout, self.plan
+        order = plan.order.tolist()
+        names = [graph.names[t] for t in order]
+        n_states = [int(lay.table_n_states[t]) for t in order]
+        radices = dict(radices or {})
+        unknown = sorted(set(radices) - set(names))
+        if unknown:
+            raise GraphError(f"radices: {unknown} are not subtasks of the graph")
+        if encoding == "onehot":
+            units = one_hot_features(n_states)
+        else:
+            units = factored_features(n_states, [radices.get(n) for n in names])
+        self.n_state_rows = units.shape[1]  # S: rows of every node's unit table
+        self.register_buffer("units", units.reshape(-1, units.shape[-1]), persistent=False)
+        pos = torch.zeros(lay.n_tables, dtype=torch.long)
+        pos[plan.order] = torch.arange(len(order))
+        self.register_buffer("table_pos", pos, persistent=False)
+        n_inputs = int(units.max()) + 1
+        self.width = lay.max_children
+        n_out = self.width * (2 if self.internal else 1)
+        self.completion = StackedMLP(
+            n_learners, len(order), n_inputs, n_out, tuple(hidden), init, init_seed
+        )
+        self.optimizer = StackedAdam(dict(self.completion.named_parameters()), lr)
+        self.V = self.primitive_bank()
+        self.heads = attach_table_heads(self, graph, lay, {"V": self.V})
+        for k, name in enumerate(names):
+            self.heads[name] = NeuralCompletionHead(name, self.completion, k)
+        self._per_state: dict = {}
+
+    # ------------------------------------------------------------------ values
+    def _context(self, ctx: StepContext):
+        """``(penalty [B, Tc, A], dead [B, Tc], unit row [B, Tc])`` of the planned nodes."""
+        plan, g = self.plan, self.graph
+        if ctx.table_row is not None:
+            key = (id(g.tab_abstract), g.tab_abstract.device)
+            cached = self._per_state.get(key)
+            if cached is None:
+                blocked = ~g.tab_available[:, plan.node]
+                dead = g.tab_blocked[:, plan.node] | blocked.all(-1)
+                penalty = torch.zeros(blocked.shape, device=blocked.device)
+                penalty.masked_fill_(blocked, -torch.inf)
+                state = g.tab_abstract[:, plan.node].clamp(0, self.n_state_rows - 1)
+                row = self._unit_row(torch.arange(len(plan.node), device=state.device), state)
+                cached = self._per_state[key] = (penalty, dead, row)
+            return tuple(t.index_select(0, ctx.table_row) for t in cached)
+        blocked = ~columns(ctx.available, plan.node)
+        dead = columns(ctx.blocked, plan.node) | blocked.all(-1)
+        penalty = torch.zeros(blocked.shape, device=blocked.device).masked_fill_(
+            blocked, -torch.inf
+        )
+        state = columns(ctx.abstract, plan.node).clamp(0, self.n_state_rows - 1)
+        return penalty, dead, self._unit_row(self._arange_tc(), state)
+
+    def _arange_tc(self) -> torch.Tensor:
+        return torch.arange(self.plan.node.shape[0], device=self.plan.node.device)
+
+    def _unit_row(self, pos: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """Row of ``self.units`` of node position ``pos`` at ``state`` (broadcast)."""
+        return pos * self.n_state_rows + state
+
+    def completions(
+        self, pos: torch.Tensor, unit_row: torch.Tensor, learner: torch.Tensor
+    ) -> torch.Tensor:
+        """The networks' outputs ``[B, ..., O]`` at node positions ``pos`` and unit rows.
+
+        ``pos``, ``unit_row`` ``[B, ...]`` of the rows ``learner [B]``. Rows in learner-major
+        blocks of equal size (``learner_blocks``) take one forward of ``P`` batched networks;
+        any other rows (e.g. ``greedy_table``'s, all of one learner) one forward of every
+        learner's network on all rows, each row keeping its own learner's outputs.
+        """
+        p = self.n_learners
+        units = self.units.index_select(0, unit_row.reshape(-1))
+        if learner_blocks(learner) == p:
+            out = self.completion(pos.reshape(p, -1), units.view(p, -1, units.shape[-1]))
+            return out.view(*pos.shape, out.shape[-1])
+        n, k = units.shape
+        every = self.completion(pos.reshape(1, -1).expand(p, n), units.expand(p, n, k))
+        picked = every.gather(
+            0, learner_rows(learner, pos)[None, :, None].expand(1, n, every.shape[-1])
+        )
+        return picked.view(*pos.shape, every.shape[-1])
+
+    def evaluate(self, ctx: StepContext) -> None:
+        """Bottom-up ``V(i, s)``, ``max_a Q~(i, s, a)`` and the rows ``Q~(i, s, .)``.
+
+        As ``MaxQLearner.evaluate``, with the completion rows from the networks (no graph
+        kept: the values are constants of the targets). ``ctx.values``: ``V``, ``V_int``
+        ``[B, T]``; ``Q`` ``[B, Tc, A]`` (plan order).
+        """
+        penalty, dead, unit_row = self._context(ctx)
+        pos = self._arange_tc().expand_as(unit_row)
+        with torch.no_grad():
+            out = self.completions(pos, unit_row, ctx.learner)
+        a = self.width
+        rows = (out[..., :a], out[..., a:]) if self.internal else (out,)
+        value = self.primitive_values(ctx, self.V)
+        value_int = value.clone() if self.internal else value
+        q_rows = []
+        for ids, kids, unavailable, gone, c, *c_int in self.groups(penalty, dead, *rows):
+            child_v = take_flat(value, kids)
+            q_ext = child_v + c
+            if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
+                q_int = child_v + c_int[0]
+                best = argmax_last(q_int + unavailable, keepdim=True)
+                v_ext = q_ext.gather(-1, best).squeeze(-1)
+                v_int = q_int.gather(-1, best).squeeze(-1)
+                value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
+            else:
+                q_int = q_ext
+                v_ext = (q_ext + unavailable).amax(-1)
+            value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
+            q_rows.append(q_int)
+        ctx.values["V"] = value
+        ctx.values["V_int"] = value_int
+        ctx.values["Q"] = torch.cat(q_rows, 1)
+
+    # ------------------------------------------------------------------ updates
+    def update(self, batch, step: int) -> None:
+        """The primitives' table update and ``updates`` Adam steps on the completion networks."""
+        fields = entries(batch)
+        level, values = entries(fields[LEVEL]), entries(fields["values"])
+        learner = fields["learner"]
+        table = self.level_table(level)
+        terminal, ran = level["terminal"], level["ran"]
+        valid = finished(level)
+        v_next = values["V"].gather(1, table)
+        v_next_int = values["V_int"].gather(1, table) if self.internal else v_next
+        target, target_int = self.targets(level, terminal, v_next, v_next_int)
+        state = level["state"].clamp_min(0)
+        # V(a, s) <- (1-alpha) V + alpha r on the primitive's level (Table 4)
+        reward = entries(fields[PRIMITIVE])["reward"][:, None].expand_as(target)
+        v_index = self.V.index(learner[:, None], table, state, 0)
+        distinct = self.rows_distinct(learner)
+        self.V.update(v_index, reward, self.alpha(step), ran, distinct)
+        # C (and C~): Adam on the mean squared error toward the Table 4 targets
+        teach = valid & ~ran
+        pos = lookup(self.table_pos, table)
+        unit_row = self._unit_row(pos, state.clamp_max(self.n_state_rows - 1))
+        child = level["child"].clamp_min(0)[..., None]
+        weight = teach.float().view(self.n_learners, -1)
+        weight = (weight / weight.sum(1, keepdim=True).clamp_min(1.0)).view_as(teach)
+        goal = torch.stack([target, target_int], -1) if self.internal else target[..., None]
+        params = dict(self.completion.named_parameters())
+        for _ in range(self.updates):
+            with torch.enable_grad():
+                out = self.completions(pos, unit_row, learner)
+                cols = [child, child + self.width] if self.internal else [child]
+                pred = torch.cat([out.gather(-1, c) for c in cols], -1)
+                error = pred - goal
+                loss = 0.5 * (error.square().sum(-1) * weight).sum()
+                grads = torch.autograd.grad(loss, list(params.values()))
+            self.optimizer.step(params, grads)
+        base = self.plan.learner_base(learner, 1, 2)
+        self.record_td(base, level["node"], error[..., -1].detach(), teach)
+
+    def extra_repr(self) -> str:
+        """The network's shape and optimiser."""
+        net = self.completion
+        return f"nodes={net.n_tables}, layers={net.n_layers}, lr={self.optimizer.lr}"
