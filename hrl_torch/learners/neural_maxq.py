@@ -90,6 +90,8 @@ class NeuralMaxQLearner(TabularLearner):
         init: the completions' initial value (the output layer starts at it exactly).
         init_seed: seed of the hidden layers' initial weights (the same for every learner).
         updates: Adam steps per env step on each step's transitions.
+        tables: subtasks whose completions stay tables (MAXQ-Q's update with ``alpha``), e.g.
+            ``("Root",)``: a tabular root over neural subtasks in one graph.
     """
 
     uses = frozenset()
@@ -109,6 +111,7 @@ class NeuralMaxQLearner(TabularLearner):
         init: float = 0.0,
         init_seed: int = 0,
         updates: int = 1,
+        tables: Sequence[str] = (),
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance=False)
         if encoding not in ("onehot", "factored"):
@@ -122,9 +125,10 @@ class NeuralMaxQLearner(TabularLearner):
         names = [graph.names[t] for t in order]
         n_states = [int(lay.table_n_states[t]) for t in order]
         radices = dict(radices or {})
-        unknown = sorted(set(radices) - set(names))
-        if unknown:
-            raise GraphError(f"radices: {unknown} are not subtasks of the graph")
+        for what, given in (("radices", radices), ("tables", tables)):
+            unknown = sorted(set(given) - set(names))
+            if unknown:
+                raise GraphError(f"{what}: {unknown} are not subtasks of the graph")
         if encoding == "onehot":
             units = one_hot_features(n_states)
         else:
@@ -142,9 +146,19 @@ class NeuralMaxQLearner(TabularLearner):
         )
         self.optimizer = StackedAdam(dict(self.completion.named_parameters()), lr)
         self.V = self.primitive_bank()
-        self.heads = attach_table_heads(self, graph, lay, {"V": self.V})
+        tabular = torch.tensor([n in tables for n in names], dtype=torch.bool)
+        self.register_buffer("tabular", tabular, persistent=False)  # [Tc], plan order
+        self.register_buffer("table_tabular", tabular[pos] & ~lay.table_is_primitive, False)
+        banks = {"V": self.V}
+        self.C = self.C_int = None
+        if tables:  # (a block per subtask, read and written only for those in ``tables``)
+            self.C = banks["C"] = self.completion_bank(init)
+            if self.internal:
+                self.C_int = banks["C_int"] = self.completion_bank(init)
+        self.heads = attach_table_heads(self, graph, lay, banks)
         for k, name in enumerate(names):
-            self.heads[name] = NeuralCompletionHead(name, self.completion, k)
+            if name not in tables:
+                self.heads[name] = NeuralCompletionHead(name, self.completion, k)
         self._per_state: dict = {}
 
     # ------------------------------------------------------------------ values
@@ -213,6 +227,11 @@ class NeuralMaxQLearner(TabularLearner):
             out = self.completions(pos, unit_row, ctx.learner)
         a = self.width
         rows = (out[..., :a], out[..., a:]) if self.internal else (out,)
+        if self.C is not None:  # the tabular subtasks' rows from their tables
+            banks = (self.C, self.C_int) if self.internal else (self.C,)
+            _, _, table_rows = self.composite_rows(ctx, *banks)
+            keep = self.tabular[:, None]
+            rows = tuple(torch.where(keep, t, r) for t, r in zip(table_rows, rows, strict=True))
         value = self.primitive_values(ctx, self.V)
         value_int = value.clone() if self.internal else value
         q_rows = []
@@ -252,8 +271,16 @@ class NeuralMaxQLearner(TabularLearner):
         v_index = self.V.index(learner[:, None], table, state, 0)
         distinct = self.rows_distinct(learner)
         self.V.update(v_index, reward, self.alpha(step), ran, distinct)
-        # C (and C~): Adam on the mean squared error toward the Table 4 targets
         teach = valid & ~ran
+        if self.C is not None:  # the tabular subtasks: C <- (1-alpha) C + alpha target
+            on_table = teach & lookup(self.table_tabular, table)
+            where = (learner[:, None], table, state, level["child"].clamp_min(0))
+            self.C.update(self.C.index(*where), target, self.alpha(step), on_table, distinct)
+            if self.internal:
+                at = self.C_int.index(*where)
+                self.C_int.update(at, target_int, self.alpha(step), on_table, distinct)
+            teach = teach & ~on_table
+        # C (and C~): Adam on the mean squared error toward the Table 4 targets
         pos = lookup(self.table_pos, table)
         unit_row = self._unit_row(pos, state.clamp_max(self.n_state_rows - 1))
         child = level["child"].clamp_min(0)[..., None]

@@ -37,20 +37,21 @@ def per_learner(trainer, p):
     return {k: v[p].clone() for k, v in state.items() if v.dim() and v.shape[0] == n}
 
 
-def test_population_equals_separate_runs_bit_for_bit():
-    together = make(SEEDS)
+@pytest.mark.parametrize("tables", [(), ("Root",)])
+def test_population_equals_separate_runs_bit_for_bit(tables):
+    together = make(SEEDS, tables=tables)
     together.train(steps=120 * 4)
     first = per_learner(together, 0)
     assert any(k.startswith("completion.w") for k in first)  # the networks' weights
     assert any(k.startswith("optimizer.m_") for k in first)  # Adam's moments
     assert any(k.endswith(".V") for k in first)  # the primitives' tables
     for p, seed in enumerate(SEEDS):
-        alone = make([seed])
+        alone = make([seed], tables=tables)
         alone.train(steps=120 * 4)
         mine = per_learner(together, p)
         for name, value in per_learner(alone, 0).items():
             assert torch.equal(value, mine[name]), (seed, name)
-    fresh = per_learner(make(SEEDS), 0)
+    fresh = per_learner(make(SEEDS, tables=tables), 0)
     assert any(not torch.equal(fresh[k], first[k]) for k in fresh)  # it learned something
 
 
@@ -73,6 +74,27 @@ def test_ten_seeds_take_one_forward_per_evaluation_and_per_adam_step(updates, mo
         # each step: one forward for the values at s', one per Adam step; every call batched
         # over the whole population
         assert calls == [len(seeds)] * (5 * (1 + updates))
+
+
+def test_a_tabular_root_over_neural_subtasks():
+    """``tables=("Root",)``: the root's completions are a table, the rest networks."""
+    from hrl_torch.modules.heads import TableHead
+    from hrl_torch.modules.neural import NeuralCompletionHead
+
+    trainer = make(SEEDS, tables=("Root",))
+    heads = trainer.learner.heads
+    assert isinstance(heads["Root"], TableHead) and isinstance(heads["Get"], NeuralCompletionHead)
+    root_before = heads["Root"]["C"].clone()
+    root_net_before = trainer.learner.completion.node_parameters(
+        trainer.learner.plan.order.tolist().index(trainer.graph.index["Root"])
+    )["b1"].clone()
+    trainer.train(steps=150 * 4)
+    assert not torch.equal(heads["Root"]["C"], root_before)  # the table learned
+    root_pos = trainer.learner.plan.order.tolist().index(trainer.graph.index["Root"])
+    # the root's (unused) network got no gradient: Adam left it where it was
+    assert torch.equal(trainer.learner.completion.node_parameters(root_pos)["b1"], root_net_before)
+    state = trainer.learner.state_dict()
+    assert "heads.Root.C" in state and "completion.w0" in state
 
 
 def test_save_load_resume_is_exact(tmp_path):
@@ -125,6 +147,8 @@ def test_bad_settings_are_refused_in_one_line():
         NeuralMaxQLearner(graph, 1, updates=0)
     with pytest.raises(Exception, match=r"radices: \['Nowhere'\] are not subtasks"):
         NeuralMaxQLearner(graph, 1, encoding="factored", radices={"Nowhere": (2,)})
+    with pytest.raises(Exception, match=r"tables: \['North'\] are not subtasks"):
+        NeuralMaxQLearner(graph, 1, tables=("North",))
     with pytest.raises(ValueError, match="hidden must be one or more positive widths"):
         NeuralMaxQLearner(graph, 1, hidden=())
 
