@@ -168,12 +168,21 @@ def mark_learner_rows(rows: torch.Tensor, host_rows: torch.Tensor) -> None:
 
     ``host_rows`` holds the same values on the CPU (read here once, so that a learner on any
     device needs no read): ``rows.distinct_rows`` (every row another learner: no two rows
-    share a table entry) and ``rows.learner_blocks``: ``P`` when the rows are ``P`` blocks of
-    equal size in learner order (row ``b`` of learner ``b // E``: neural heads batch over the
-    population), else 0.
+    share a table entry); ``rows.learner_blocks``: ``P`` when every learner ``0..P-1`` has
+    the same number of rows, else 0; ``rows.learner_order``: ``None`` when those rows are
+    already ``P`` blocks in learner order (row ``b`` of learner ``b // E``), else ``(order,
+    inverse)`` on ``rows``' device, the stable permutation that makes them so (a multi-agent
+    env's rows interleave the agents' table sets) and its inverse. Neural heads batch over
+    the population with them.
     """
     b = host_rows.numel()
-    rows.distinct_rows = host_rows.unique().numel() == b
-    p = int(host_rows.max()) + 1 if b else 0
-    major = b and b % p == 0 and torch.equal(host_rows.cpu(), torch.arange(b) // (b // p))
-    rows.learner_blocks = p if major else 0
+    host = host_rows.cpu()
+    rows.distinct_rows = host.unique().numel() == b
+    p = int(host.max()) + 1 if b else 0
+    equal = b > 0 and bool((torch.bincount(host, minlength=p) == b // p).all())
+    rows.learner_blocks = p if equal and b % p == 0 else 0
+    rows.learner_order = None
+    if rows.learner_blocks and not torch.equal(host, torch.arange(b) // (b // p)):
+        order = torch.sort(host, stable=True).indices
+        inverse = torch.empty_like(order).scatter_(0, order, torch.arange(b))
+        rows.learner_order = (order.to(rows.device), inverse.to(rows.device))

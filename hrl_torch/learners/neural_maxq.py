@@ -55,7 +55,7 @@ from hrl_torch.modules.neural import (
 
 
 def learner_blocks(learner: torch.Tensor) -> int:
-    """``P`` when rows ``learner [B]`` are ``P`` blocks of equal size in learner order, else 0.
+    """``P`` when every learner has the same number of rows in ``learner [B]``, else 0.
 
     Known for the executor's rows (``common.ops.mark_learner_rows``, read on the CPU); other
     row tensors are read once (an evaluation's or analysis helper's, made outside the step).
@@ -92,6 +92,8 @@ class NeuralMaxQLearner(TabularLearner):
         updates: Adam steps per env step on each step's transitions.
         tables: subtasks whose completions stay tables (MAXQ-Q's update with ``alpha``), e.g.
             ``("Root",)``: a tabular root over neural subtasks in one graph.
+        init_nodes: initial completions of the named subtasks instead of ``init`` (their
+            networks' output biases, or their tables).
     """
 
     uses = frozenset()
@@ -112,6 +114,7 @@ class NeuralMaxQLearner(TabularLearner):
         init_seed: int = 0,
         updates: int = 1,
         tables: Sequence[str] = (),
+        init_nodes: Mapping[str, float] | None = None,
     ) -> None:
         super().__init__(graph, n_learners, alpha, gamma, per_instance=False)
         if encoding not in ("onehot", "factored"):
@@ -125,7 +128,8 @@ class NeuralMaxQLearner(TabularLearner):
         names = [graph.names[t] for t in order]
         n_states = [int(lay.table_n_states[t]) for t in order]
         radices = dict(radices or {})
-        for what, given in (("radices", radices), ("tables", tables)):
+        init_nodes = dict(init_nodes or {})
+        for what, given in (("radices", radices), ("tables", tables), ("init_nodes", init_nodes)):
             unknown = sorted(set(given) - set(names))
             if unknown:
                 raise GraphError(f"{what}: {unknown} are not subtasks of the graph")
@@ -156,9 +160,16 @@ class NeuralMaxQLearner(TabularLearner):
             if self.internal:
                 self.C_int = banks["C_int"] = self.completion_bank(init)
         self.heads = attach_table_heads(self, graph, lay, banks)
-        for k, name in enumerate(names):
-            if name not in tables:
-                self.heads[name] = NeuralCompletionHead(name, self.completion, k)
+        last = getattr(self.completion, f"b{self.completion.n_layers - 1}")
+        with torch.no_grad():
+            for k, name in enumerate(names):
+                if name in init_nodes:
+                    last[:, k].fill_(float(init_nodes[name]))
+                if name not in tables:
+                    self.heads[name] = NeuralCompletionHead(name, self.completion, k)
+                elif name in init_nodes:
+                    for key in ("C", "C_int") if self.internal else ("C",):
+                        self.heads[name][key].fill_(float(init_nodes[name]))
         self._per_state: dict = {}
 
     # ------------------------------------------------------------------ values
@@ -197,16 +208,22 @@ class NeuralMaxQLearner(TabularLearner):
     ) -> torch.Tensor:
         """The networks' outputs ``[B, ..., O]`` at node positions ``pos`` and unit rows.
 
-        ``pos``, ``unit_row`` ``[B, ...]`` of the rows ``learner [B]``. Rows in learner-major
-        blocks of equal size (``learner_blocks``) take one forward of ``P`` batched networks;
-        any other rows (e.g. ``greedy_table``'s, all of one learner) one forward of every
+        ``pos``, ``unit_row`` ``[B, ...]`` of the rows ``learner [B]``. Rows with the same
+        number for every learner (``learner_blocks``; sorted into learner-major blocks where
+        they interleave, ``learner_order``) take one forward of ``P`` batched networks; any
+        other rows (e.g. ``greedy_table``'s, all of one learner) one forward of every
         learner's network on all rows, each row keeping its own learner's outputs.
         """
         p = self.n_learners
-        units = self.units.index_select(0, unit_row.reshape(-1))
         if learner_blocks(learner) == p:
+            order = learner.learner_order  # (rows interleaved: sorted into blocks and back)
+            if order is not None:
+                pos, unit_row = pos.index_select(0, order[0]), unit_row.index_select(0, order[0])
+            units = self.units.index_select(0, unit_row.reshape(-1))
             out = self.completion(pos.reshape(p, -1), units.view(p, -1, units.shape[-1]))
-            return out.view(*pos.shape, out.shape[-1])
+            out = out.view(*pos.shape, out.shape[-1])
+            return out if order is None else out.index_select(0, order[1])
+        units = self.units.index_select(0, unit_row.reshape(-1))
         n, k = units.shape
         every = self.completion(pos.reshape(1, -1).expand(p, n), units.expand(p, n, k))
         picked = every.gather(

@@ -129,6 +129,33 @@ def test_rows_of_one_learner_read_that_learners_networks():
             torch.testing.assert_close(alone.values[key], block, atol=1e-5, rtol=0)
 
 
+def test_interleaved_rows_are_sorted_into_the_batched_forward(monkeypatch):
+    """A multi-agent env's rows interleave the table sets: one batched forward, same values."""
+    from hrl_torch.common.ops import mark_learner_rows
+
+    trainer = make(SEEDS)
+    trainer.train(steps=60 * 4)
+    g, learner = trainer.graph, trainer.learner
+    obs = g.table_observations
+    n = obs.batch_size[0]
+    major = g.context(obs[torch.arange(n).repeat(3)], torch.arange(3).repeat_interleave(n))
+    learner.evaluate_checked(major)
+    rows = torch.arange(3).repeat(n)  # 0, 1, 2, 0, 1, 2, ...
+    mark_learner_rows(rows, rows)
+    assert rows.learner_blocks == 3 and rows.learner_order is not None
+    widths = []
+    forward = StackedMLP.forward
+    monkeypatch.setattr(
+        StackedMLP, "forward", lambda self, t, u: widths.append(t.shape) or forward(self, t, u)
+    )
+    mixed = g.context(obs[torch.arange(n).repeat_interleave(3)], rows)
+    learner.evaluate_checked(mixed)
+    assert widths == [(3, n * learner.plan.order.numel())]  # each learner's own rows only
+    for key in ("V", "Q"):
+        back = mixed.values[key].view(n, 3, *mixed.values[key].shape[1:]).transpose(0, 1)
+        assert torch.equal(back.reshape(major.values[key].shape), major.values[key])
+
+
 def test_encodings():
     assert one_hot_features([3, 2]).squeeze(-1).tolist() == [[0, 1, 2], [0, 1, 2]]
     units = factored_features([125, 4], [(5, 5, 5), None])
