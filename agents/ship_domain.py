@@ -77,7 +77,7 @@ DOMAIN = DomainSpec(
         ),
         "hybrid-mlp": AlgoSpec(
             make_graph=lambda: ship_hierarchy(PARAMS.out_of_bounds_reward),
-            learner=Make(make_hybrid_mlp, params=PARAMS, hidden=(32,), pg_alpha=0.001),
+            learner=Make(make_hybrid_mlp, params=PARAMS, hidden=32, pg_alpha=0.001),
             exploration=Make(EpsilonGreedy, epsilon=PARAMS.epsilon),
             train=_TRAIN,
             # (each row keeps LOW_LEVEL_GUARD score traces of the MLP's 193 weights)

@@ -26,7 +26,7 @@ from hrl_torch.modules.exploration import TriggeredEpsilon
 from hrl_torch.modules.neural_policies import MLPGaussianPolicyHead
 
 
-def mlp_heads(sigma: float, hidden: tuple[int, ...] = (32,)) -> dict[str, MLPGaussianPolicyHead]:
+def mlp_heads(sigma: float, hidden: int | tuple[int, ...] = 32) -> dict[str, MLPGaussianPolicyHead]:
     """One MLP Gaussian head per low-level subtask, over its four local features."""
     low, high = [0.0, 0.0, -180.0, -MAX_TURN], [LOCAL_SIZE, LOCAL_SIZE, 180.0, MAX_TURN]
     return {
@@ -39,7 +39,7 @@ def make_hybrid_mlp(
     graph: TaskGraph,
     n_learners: int,
     params: ShipHyperparams = PARAMS,
-    hidden: tuple[int, ...] = (32,),
+    hidden: int | tuple[int, ...] = 32,
     pg_alpha: float = 0.001,
 ) -> HybridLearner:
     """The hybrid with MLP Gaussian low-level subtasks (``pg_alpha``: their step size)."""
@@ -57,7 +57,7 @@ def make_hybrid_mlp(
         n_learners,
         config,
         direction_groups(),
-        heads=mlp_heads(params.sigma, tuple(hidden)),
+        heads=mlp_heads(params.sigma, hidden),
         feature_reward=low_level_feature_rewards(),
     )
     epsilon = TriggeredEpsilon(

@@ -82,7 +82,7 @@ class NeuralMaxQLearner(TabularLearner):
         alpha: step size of the primitives' ``V`` tables (number or schedule).
         gamma: discount factor.
         lr: Adam's step size for the completion networks.
-        hidden: hidden widths of every node's MLP.
+        hidden: hidden widths of every node's MLP (a number: one hidden layer).
         encoding: ``"onehot"`` (a unit per abstract state) or ``"factored"`` (a unit per
             digit of the state in ``radices``).
         radices: for ``"factored"``, each subtask's mixed radices by name (e.g. ``{"Get":
@@ -107,7 +107,7 @@ class NeuralMaxQLearner(TabularLearner):
         alpha: float | Schedule = 0.5,
         gamma: float = 1.0,
         lr: float = 0.01,
-        hidden: Sequence[int] = (64,),
+        hidden: int | Sequence[int] = 64,
         encoding: str = "onehot",
         radices: Mapping[str, Sequence[int]] | None = None,
         init: float = 0.0,
@@ -146,7 +146,7 @@ class NeuralMaxQLearner(TabularLearner):
         self.width = lay.max_children
         n_out = self.width * (2 if self.internal else 1)
         self.completion = StackedMLP(
-            n_learners, len(order), n_inputs, n_out, tuple(hidden), init, init_seed
+            n_learners, len(order), n_inputs, n_out, hidden, init, init_seed
         )
         self.optimizer = StackedAdam(dict(self.completion.named_parameters()), lr)
         self.V = self.primitive_bank()

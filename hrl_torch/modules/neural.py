@@ -80,7 +80,7 @@ class StackedMLP(nn.Module):
         n_tables: nodes ``T``.
         n_inputs: input units per node ``F``.
         n_outputs: outputs per node ``O``.
-        hidden: widths of the hidden layers.
+        hidden: widths of the hidden layers (a number: one layer).
         init: the outputs' initial value.
         init_seed: seed of the initial weights.
         out_scale: standard deviation scale of the output layer's initial weights.
@@ -92,12 +92,13 @@ class StackedMLP(nn.Module):
         n_tables: int,
         n_inputs: int,
         n_outputs: int,
-        hidden: Sequence[int] = (64,),
+        hidden: int | Sequence[int] = (64,),
         init: float = 0.0,
         init_seed: int = 0,
         out_scale: float = 1.0,
     ) -> None:
         super().__init__()
+        hidden = (hidden,) if isinstance(hidden, int) else tuple(hidden)
         if not hidden or any(int(h) < 1 for h in hidden):
             raise ValueError(f"hidden must be one or more positive widths, got {hidden!r}")
         gen = torch.Generator().manual_seed(int(init_seed))

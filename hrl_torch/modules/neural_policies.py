@@ -40,7 +40,7 @@ class MLPGaussianPolicyHead(PolicyHead):
     Args:
         name: the head's name (its subtask or group).
         n_inputs: features the MLP reads (the first ``n_inputs`` of the node's).
-        hidden: hidden widths (``tanh``); ``()`` for a linear mean.
+        hidden: hidden widths (``tanh``; a number: one layer); ``()`` for a linear mean.
         sigma: standard deviation of ``u``.
         action_low: lower end of the action range.
         action_high: upper end of the action range.
@@ -58,7 +58,7 @@ class MLPGaussianPolicyHead(PolicyHead):
         self,
         name: str,
         n_inputs: int,
-        hidden: Sequence[int] = (32,),
+        hidden: int | Sequence[int] = (32,),
         sigma: float = 1.0,
         action_low: float = -15.0,
         action_high: float = 15.0,
@@ -72,6 +72,7 @@ class MLPGaussianPolicyHead(PolicyHead):
             raise ValueError(f"sigma must be positive, got {sigma}")
         if (low is None) != (high is None) or (low is not None and coder is not None):
             raise ValueError("give low and high together, or a coder, or neither")
+        hidden = (hidden,) if isinstance(hidden, int) else tuple(hidden)
         width_in = coder.n_features if coder is not None else int(n_inputs)
         widths = [width_in, *(int(h) for h in hidden), 1]
         self.shapes = [(a, b) for a, b in zip(widths[:-1], widths[1:], strict=True)]
