@@ -185,7 +185,7 @@ class NeuralMaxQLearner(TabularLearner):
                 penalty = torch.zeros(blocked.shape, device=blocked.device)
                 penalty.masked_fill_(blocked, -torch.inf)
                 state = g.tab_abstract[:, plan.node].clamp(0, self.n_state_rows - 1)
-                row = self._unit_row(torch.arange(len(plan.node), device=state.device), state)
+                row = self.unit_rows(torch.arange(len(plan.node), device=state.device), state)
                 cached = self._per_state[key] = (penalty, dead, row)
             return tuple(t.index_select(0, ctx.table_row) for t in cached)
         blocked = ~columns(ctx.available, plan.node)
@@ -194,12 +194,12 @@ class NeuralMaxQLearner(TabularLearner):
             blocked, -torch.inf
         )
         state = columns(ctx.abstract, plan.node).clamp(0, self.n_state_rows - 1)
-        return penalty, dead, self._unit_row(self._arange_tc(), state)
+        return penalty, dead, self.unit_rows(self._arange_tc(), state)
 
     def _arange_tc(self) -> torch.Tensor:
         return torch.arange(self.plan.node.shape[0], device=self.plan.node.device)
 
-    def _unit_row(self, pos: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+    def unit_rows(self, pos: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Row of ``self.units`` of node position ``pos`` at ``state`` (broadcast)."""
         return pos * self.n_state_rows + state
 
@@ -299,7 +299,7 @@ class NeuralMaxQLearner(TabularLearner):
             teach = teach & ~on_table
         # C (and C~): Adam on the mean squared error toward the Table 4 targets
         pos = lookup(self.table_pos, table)
-        unit_row = self._unit_row(pos, state.clamp_max(self.n_state_rows - 1))
+        unit_row = self.unit_rows(pos, state.clamp_max(self.n_state_rows - 1))
         child = level["child"].clamp_min(0)[..., None]
         weight = teach.float().view(self.n_learners, -1)
         weight = (weight / weight.sum(1, keepdim=True).clamp_min(1.0)).view_as(teach)

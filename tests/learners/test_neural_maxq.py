@@ -210,3 +210,49 @@ def test_the_registered_configuration_reaches_the_threshold():
     trainer = build_trainer(registry.get("taxi"), "maxq-q-mlp", opts)
     result = trainer.train()
     assert min(result.final_eval) >= 7.5, result.final_eval
+
+
+def test_tabular_subtasks_follow_dietterichs_rules_with_internal_completions():
+    """Every subtask in ``tables``: the hand-computed MAXQ-Q numbers, ``C`` and ``C~``."""
+    from tests.learners.test_hand_computed_targets import (
+        ALPHA,
+        GAMMA,
+        STEPS,
+        per_state_chain,
+        reference_maxq,
+    )
+    from tests.learners.test_q_lambda_and_hh_exact import run
+
+    graph, env = per_state_chain(internal_rewards=True)
+    learner = NeuralMaxQLearner(graph, 1, alpha=ALPHA, gamma=GAMMA, tables=("Root", "Go2", "Go3"))
+    run(graph, env, learner, STEPS, gamma=GAMMA)
+    vr, c, ci = reference_maxq()
+    h = learner.heads
+    got = {
+        "go2@1": (h["Go2"]["C"][0, 1, 0], h["Go2"]["C_int"][0, 1, 0]),
+        "go3": (h["Go3"]["C"][0, 0, 0], h["Go3"]["C_int"][0, 0, 0]),
+        "root@0": (h["Root"]["C"][0, 0, 0], h["Root"]["C_int"][0, 0, 0]),
+    }
+    for key, (external, internal) in got.items():
+        assert abs(float(external) - c[key]) < 1e-5, (key, float(external), c[key])
+        assert abs(float(internal) - ci[key]) < 1e-5, (key, float(internal), ci[key])
+    for s in range(3):
+        assert abs(float(h["Right"]["V"][0, s, 0]) - vr[s]) < 1e-5
+
+
+def test_networks_learn_internal_completions_apart_from_external_ones():
+    """With networks: ``Go2``'s pseudo reward of 3 enters its ``C~`` output, not its ``C``."""
+    from tests.learners.test_hand_computed_targets import GAMMA, per_state_chain
+    from tests.learners.test_q_lambda_and_hh_exact import run
+
+    graph, env = per_state_chain(internal_rewards=True)
+    learner = NeuralMaxQLearner(graph, 1, gamma=GAMMA, lr=0.05, hidden=8, updates=4)
+    run(graph, env, learner, 7 * 20, gamma=GAMMA)
+    pos = learner.plan.order.tolist().index(graph.index["Go2"])
+    unit = learner.unit_rows(torch.tensor([pos]), torch.tensor([1]))
+    with torch.no_grad():
+        out = learner.completions(
+            torch.tensor([[pos]]), unit[None], torch.zeros(1, dtype=torch.long)
+        )
+    external, internal = float(out[0, 0, 0]), float(out[0, 0, learner.width])
+    assert abs(external) < 0.3 and abs(internal - GAMMA * 3.0) < 0.3, (external, internal)
