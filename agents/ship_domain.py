@@ -42,9 +42,9 @@ def _text_specs() -> dict[str, AlgoSpec]:
     """The ``-text`` variants (Section 5.3's set-up, ``agents/ship_text.py``)."""
     streams = 64  # agents.ship_text.STREAMS
     specs = {
-        "hybrid-text": (ship_hierarchy, "make_hybrid_text", _GUARDED, "hybrid"),
-        "flat-pg-text": (flat_graph, "make_flat_pg_text", ExecutorConfig(), "flat PGRL"),
-        "actor-critic-text": (flat_graph, "make_actor_critic_text", ExecutorConfig(), "AC"),
+        "hybrid": (ship_hierarchy, "make_hybrid_text", _GUARDED, "hybrid"),
+        "flat-pg": (flat_graph, "make_flat_pg_text", ExecutorConfig(), "flat PGRL"),
+        "actor-critic": (flat_graph, "make_actor_critic_text", ExecutorConfig(), "AC"),
     }
     return {
         name: AlgoSpec(

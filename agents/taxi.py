@@ -151,7 +151,7 @@ def make_env(seeds, envs_per_learner: int, backend: str = "torch"):
 
 
 #: Epsilon-greedy from 1 to 0.05 over the first third of the budget: taxi's recipe, also used
-#: by taxi-fuel, the gridworlds and the toy-text envs
+#: by taxi-fuel-earlier, the gridworlds and the toy-text envs
 epsilon_first_third = linear_epsilon(1.0, 0.05, Fraction(1, 3))
 
 
