@@ -15,6 +15,7 @@ from agents.ship_learners import (
     make_flat_pg,
     make_hybrid,
 )
+from agents.ship_neural import make_hybrid_mlp
 from hrl_torch.common.config import Make
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.modules.exploration import EpsilonGreedy, Greedy
@@ -82,6 +83,16 @@ DOMAIN_EARLIER = DomainSpec(
             envs_per_learner=1024,
             executor=_GUARDED,
             description="hierarchical hybrid: Q(lambda) root over 8 directions, HPGRL below",
+        ),
+        "hybrid-mlp": AlgoSpec(
+            make_graph=lambda: ship_hierarchy(PARAMS.out_of_bounds_reward),
+            learner=Make(make_hybrid_mlp, params=PARAMS, hidden=32, pg_alpha=0.001),
+            exploration=Make(EpsilonGreedy, epsilon=PARAMS.epsilon),
+            train=_TRAIN,
+            # (each row keeps LOW_LEVEL_GUARD score traces of the MLP's 193 weights)
+            envs_per_learner=256,
+            executor=_GUARDED,
+            description="the hybrid with MLP Gaussian subtasks (scores by autograd)",
         ),
         "flat-pg": AlgoSpec(
             make_graph=lambda: flat_graph(PARAMS.out_of_bounds_reward),

@@ -31,11 +31,13 @@ import torch
 from tensordict import TensorDict
 
 from envs.taxi import N_ACTIONS, STATIONS, TaxiEnv, decode
+from hrl_torch.common.config import Make
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
+from hrl_torch.learners.neural_maxq import NeuralMaxQLearner
 from hrl_torch.modules.exploration import linear_epsilon
 from hrl_torch.runs.algorithms import Tasks
-from hrl_torch.runs.domain import DomainSpec
+from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig
 
 IN_TAXI = 4
@@ -185,4 +187,25 @@ DOMAIN = DomainSpec(
             },
         },
     ),
+    algos={  # (not a registered family: tuned here, docs/neural-heads.md)
+        "maxq-q-mlp": AlgoSpec(
+            make_graph=taxi_hierarchy,
+            # (measured in docs/neural-heads.md: 8 Adam steps of 0.002 per env step learn
+            # within the budget; 4 of 0.01 and 1 of 0.01 diverged into wall-bump loops)
+            learner=Make(
+                NeuralMaxQLearner,
+                alpha=0.5,
+                gamma=1.0,
+                lr=0.002,
+                hidden=64,
+                encoding="onehot",
+                init=PESSIMISTIC_INIT,
+                updates=8,
+            ),
+            exploration=epsilon_first_third,
+            train=TrainConfig(steps=60_000, eval_every=2_048, threshold=7.5),
+            envs_per_learner=256,
+            description="MAXQ-Q with MLP completions (one-hot abstract states), trained by Adam",
+        ),
+    },
 )

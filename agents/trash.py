@@ -74,6 +74,7 @@ from hrl_torch.common.config import Make
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
+from hrl_torch.learners.neural_maxq import NeuralMaxQLearner
 from hrl_torch.modules.exploration import linear_epsilon
 from hrl_torch.modules.tables import RowSteps
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
@@ -212,6 +213,19 @@ COOPERATIVE_ROOT_INIT = 0.0
 _MAXQ_COOPERATIVE = _MAXQ.with_argument("init_nodes", {"Root": COOPERATIVE_ROOT_INIT})
 
 
+#: Cooperative HRL with MLP completions (issue 36; hrl_torch.learners.neural_maxq): taxi's
+#: network settings, the tables' targets, discount and initial values
+_MAXQ_COOPERATIVE_MLP = Make(
+    NeuralMaxQLearner,
+    alpha=0.2,
+    gamma=GAMMA,
+    lr=0.002,
+    init=INIT,
+    updates=8,
+    init_nodes={"Root": COOPERATIVE_ROOT_INIT},
+)
+
+
 #: the per-entry step size of the ``-visits`` algorithms: ``clip(1 / n, LOW, HIGH)``
 VISIT_STEP = (0.2, 0.01)
 #: their budget: the 1/n step size pays off with a longer run (issue 22: Cooperative 1.437 at
@@ -285,6 +299,11 @@ def _algos() -> dict[str, AlgoSpec]:
     visits = " with a per-entry 1/n step size in [0.01, 0.2], 600,000 steps"
     return {
         "cooperative": cooperative,
+        "cooperative-mlp": replace(
+            cooperative,
+            learner=_MAXQ_COOPERATIVE_MLP,
+            description="Cooperative HRL with MLP completions (one-hot states, Adam)",
+        ),
         "selfish": selfish,
         "single": spec(trash_hierarchy, "single-agent HRL: one robot", n_agents=1),
         "cooperative-visits": replace(

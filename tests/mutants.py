@@ -931,9 +931,9 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "tables-rows-always-distinct",
-        "hrl_torch/execution/executor.py",
-        "self.distinct_rows = learner.unique().numel() == learner.numel()",
-        "self.distinct_rows = True",
+        "hrl_torch/common/ops.py",
+        "distinct = host.unique().numel() == b",
+        "distinct = True",
         "rows of one learner take the plain update one after the other (not order-free)",
         ("tests/test_any_device.py", TABLES, "tests/test_population.py", MAXQ_EXACT),
     ),

@@ -148,7 +148,7 @@ def test_the_executor_reads_whether_rows_share_a_learner_on_the_cpu(envs, distin
     opts = _options("meta")
     opts.envs_per_learner = envs
     trainer = build_trainer(registry.get("taxi"), "maxq-q", opts)
-    assert trainer.executor.distinct_rows is distinct
+    assert trainer.executor.row_layout.distinct is distinct
     assert trainer.learner.rows_distinct(trainer.executor.learner) is distinct
 
 

@@ -46,10 +46,8 @@ def test_unknown_domain_and_algorithm(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("hrl-torch: error: unknown domain 'nope'; ")
     assert main(["train", "taxi", "--algo", "x", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
-    assert (
-        err
-        == "hrl-torch: error: 'taxi' has no algorithm 'x'; choose from ['maxq-q', 'q', 'smdp-q']"
-    )
+    choices = "['maxq-q', 'maxq-q-mlp', 'q', 'smdp-q']"
+    assert err == f"hrl-torch: error: 'taxi' has no algorithm 'x'; choose from {choices}"
     assert not list(tmp_path.iterdir())
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from tensordict import TensorDict
 
@@ -161,3 +163,37 @@ def group_of_rows(index: torch.Tensor) -> torch.Tensor:
     starts = torch.ones_like(value, dtype=torch.long)
     starts[1:] = value[1:] != value[:-1]
     return torch.empty_like(order).scatter_(0, order, starts.cumsum(0) - 1)
+
+
+@dataclass(frozen=True)
+class RowLayout:
+    """How a batch's rows are laid out over the learners (read once, on the CPU).
+
+    Attributes:
+        distinct: every row is another learner's (no two rows share a table entry).
+        blocks: ``P`` when every learner ``0..P-1`` has the same number of rows, else 0.
+        order: ``None`` when those rows are already ``P`` blocks in learner order (row ``b`` of
+            learner ``b // E``), else ``(order, inverse)`` on the rows' device: the stable
+            permutation that makes them so (a multi-agent env's rows interleave the agents'
+            table sets) and its inverse. Neural heads batch over the population with them.
+    """
+
+    distinct: bool
+    blocks: int
+    order: tuple[torch.Tensor, torch.Tensor] | None
+
+
+def row_layout(host_rows: torch.Tensor, device: torch.device | str = "cpu") -> RowLayout:
+    """The ``RowLayout`` of the rows ``host_rows [B]`` (each row's learner), read here once."""
+    b = host_rows.numel()
+    host = host_rows.cpu()
+    distinct = host.unique().numel() == b
+    p = int(host.max()) + 1 if b else 0
+    equal = b > 0 and bool((torch.bincount(host, minlength=p) == b // p).all())
+    blocks = p if equal and b % p == 0 else 0
+    order = None
+    if blocks and not torch.equal(host, torch.arange(b) // (b // p)):
+        perm = torch.sort(host, stable=True).indices
+        inverse = torch.empty_like(perm).scatter_(0, perm, torch.arange(b))
+        order = (perm.to(device), inverse.to(device))
+    return RowLayout(distinct, blocks, order)

@@ -23,7 +23,7 @@ from typing import Literal
 import torch
 from tensordict import TensorDict
 
-from hrl_torch.common.ops import add_at, below, discount, entries
+from hrl_torch.common.ops import add_at, below, discount, entries, row_layout
 from hrl_torch.execution.descent import Descent, level_spans
 from hrl_torch.execution.stack import TaskStack
 from hrl_torch.execution.transitions import (  # noqa: F401  (LEVEL, PRIMITIVE, Choice, Policy: re-exported)
@@ -137,8 +137,8 @@ class HierarchicalExecutor:
         # read where the caller made it (the CPU: ``meta`` and CUDA rows need no host read)
         self.n_learners = int(learner.max()) + 1 if batch_size else 0
         self.learner = learner.to(device)
-        # (read on the CPU too: ``Learner.know_rows`` is told, and needs no device read)
-        self.distinct_rows = learner.unique().numel() == learner.numel()
+        # (read on the CPU: the agent tells the learner, which then needs no device read)
+        self.row_layout = row_layout(learner, device)
         self.envs_per_learner = envs_per_learner or batch_size
         self.depth = graph.max_levels
         self.levels = torch.arange(self.depth, **long)

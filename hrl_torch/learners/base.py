@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from hrl_torch.common.devices import MovesTensorAttrs, static_shapes
-from hrl_torch.common.ops import add_at, at_rows, lookup, take_flat
+from hrl_torch.common.ops import RowLayout, add_at, at_rows, lookup, row_layout, take_flat
 from hrl_torch.common.per_learner import check_size
 from hrl_torch.common.rng import BatchRNG, LevelDraws
 from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
@@ -144,25 +144,34 @@ class Learner(MovesTensorAttrs, nn.Module):
         """Trace-ring entries a step reads for ``rows`` batch rows (0: no rings)."""
         return 0
 
-    def know_rows(self, learner: torch.Tensor, distinct: bool) -> None:
-        """Be told that the rows ``learner [B]`` (an agent's) are ``distinct`` (read elsewhere)."""
+    def know_rows(self, learner: torch.Tensor, layout: RowLayout) -> None:
+        """Be told the layout of the rows ``learner [B]`` (an agent's, read on the CPU)."""
         known = self.__dict__.setdefault("_known_rows", {})
-        known[id(learner)] = (learner, distinct)  # (keeps the tensor: its id is not reused)
+        known[id(learner)] = (learner, layout)  # (keeps the tensor: its id is not reused)
         while len(known) > 8:  # each evaluation's agent brings new rows
             known.pop(next(iter(known)))
+
+    def row_layout(self, learner: torch.Tensor) -> RowLayout | None:
+        """The ``RowLayout`` of the rows ``learner [B]``: told (``know_rows``) or read once.
+
+        ``None`` on ``meta`` for rows nobody told of (no data to read).
+        """
+        known = self.__dict__.setdefault("_known_rows", {})
+        rows, layout = known.get(id(learner), (None, None))
+        if rows is not learner:
+            if learner.device.type == "meta":
+                return None
+            self.know_rows(learner, row_layout(learner, learner.device))
+            layout = known[id(learner)][1]
+        return layout
 
     def rows_distinct(self, learner: torch.Tensor) -> bool:
         """Whether every row of a batch belongs to another learner (``learner [B]``).
 
-        Then no two rows reach one table entry. Rows an agent told of (``know_rows``) are not
-        read again; others are read once while they are the same tensor.
+        Then no two rows reach one table entry.
         """
-        known = self.__dict__.setdefault("_known_rows", {})
-        rows, distinct = known.get(id(learner), (None, None))
-        if rows is not learner:
-            distinct = learner.unique().numel() == learner.numel()
-            known[id(learner)] = (learner, distinct)
-        return distinct
+        layout = self.row_layout(learner)
+        return layout is not None and layout.distinct
 
 
 def _names(keys) -> str:

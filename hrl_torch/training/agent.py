@@ -156,7 +156,7 @@ class HierarchicalAgent:
             sums=self.transitions,  # (nor its reward sums, without transitions)
         )
         self.rows = self.executor.learner
-        learner.know_rows(self.rows, self.executor.distinct_rows)
+        learner.know_rows(self.rows, self.executor.row_layout)
         self._made = {"exploration": exploration, "config": executor_config, "evaluate": evaluate}
         self.clock = 0
         self.device_clock: torch.Tensor | None = None  # (``count_on_device``)

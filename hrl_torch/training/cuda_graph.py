@@ -175,11 +175,14 @@ def replay_trace(ops: list) -> None:
             return type(x)(sub(v) for v in x)
         return x
 
-    for func, args, kwargs, out in ops:
-        new = func(*sub(args), **{k: sub(v) for k, v in kwargs.items()})
-        for o, n in zip(_flat(out), _flat(new), strict=True):
-            if isinstance(o, torch.Tensor):
-                made[id(o)] = n
+    # (the recorded ops sit below autograd, a neural learner's backward ops among them: a
+    # replay, like a CUDA graph's, re-runs them without building another autograd graph)
+    with torch.no_grad():
+        for func, args, kwargs, out in ops:
+            new = func(*sub(args), **{k: sub(v) for k, v in kwargs.items()})
+            for o, n in zip(_flat(out), _flat(new), strict=True):
+                if isinstance(o, torch.Tensor):
+                    made[id(o)] = n
 
 
 class StepGraph:
