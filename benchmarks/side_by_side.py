@@ -13,6 +13,8 @@
 - ``eval``: ``four-agv-text`` Cooperative HRL trained 2,000 steps (1 seed), then one greedy
   throughput evaluation capped at ``--steps`` event steps, in each checkout (0.2.0 layout
   only); prints its seconds and its numbers (they must be equal).
+- ``ops``: aten ops per greedy evaluation step of the same four-agv-text run (200 steps), in
+  each checkout (deterministic, unlike the seconds on a shared machine).
 - ``hashes``: SHA-256 of the learner's tables after 80 steps (2 seeds x 4 envs) of every
   cooperative configuration, to compare across commits.
 """
@@ -47,6 +49,29 @@ start = time.perf_counter()
 values = trainer.evaluator.evaluate(trainer)
 seconds = time.perf_counter() - start
 print(json.dumps({"seconds": seconds, "values": repr([v.tolist() for v in values])}))
+"""
+
+OPS = r"""
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+torch.set_num_threads(1)
+import agents  # noqa: F401
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
+class Count(TorchDispatchMode):
+    count = 0
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.count += 1
+        return func(*args, **(kwargs or {}))
+opts = RunOptions(seeds=[0], steps=200, progress=False, tensorboard=False, check_env=False)
+trainer = build_trainer(registry.get("four-agv-text"), "cooperative", opts)
+trainer.eval_env, eval_env = None, trainer.eval_env
+trainer.train()
+trainer.eval_env = eval_env
+trainer.evaluator.max_steps = 200
+with Count() as counter:
+    trainer.evaluator.evaluate(trainer)
+print(counter.count / 200)
 """
 
 HASHES = r"""
@@ -98,7 +123,7 @@ def greedy_evaluation(checkout: Path, steps: int) -> dict:
 def main() -> None:
     """Parse the arguments and print the comparison."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["train", "eval", "hashes"])
+    parser.add_argument("what", choices=["train", "eval", "ops", "hashes"])
     parser.add_argument("--old", type=Path, help="the other checkout (a git worktree)")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--steps", type=int, default=None)
@@ -108,6 +133,12 @@ def main() -> None:
         subprocess.run([sys.executable, "-c", HASHES], cwd=ROOT, env=_env(ROOT), check=True)
         return
     sides = {"old": args.old, "new": ROOT}
+    if args.what == "ops":
+        for name, checkout in sides.items():
+            cmd = [sys.executable, "-c", OPS]
+            out = subprocess.run(cmd, cwd=checkout, env=_env(checkout), capture_output=True)
+            print(f"{name} ({checkout}): {out.stdout.decode().split()[-1]} ops per eval step")
+        return
     if args.what == "train":
         times: dict[str, list[float]] = {"old": [], "new": []}
         for _ in range(args.rounds):

@@ -118,9 +118,10 @@ def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
 def test_recoded_contexts_learn_the_tables_of_contexts_computed_anew(domain, algo, monkeypatch):
     """The re-choosing rounds' contexts moved by the codes (``RECODE``) equal computed ones.
 
-    (Before the change, on 11345d5, the tables of 80 steps of 2 seeds x 4 envs hashed to
-    trash 5d95f490672a2e41, two-taxi com-1 3cd4140a57b3ca38, four-agv 284cd707ea11ad5c's
-    text variant; so they do after it: ``benchmarks/coop_step.py --hashes``.)
+    (Also across the change: on 11345d5 the tables of 80 steps of 2 seeds x 4 envs of trash,
+    two-taxi, two-taxi com-1, four-agv and four-agv-text Cooperative HRL hashed to
+    5d95f490672a2e41, 2e06772f7b78ef26, 3cd4140a57b3ca38, d984a93661f524d0, 284cd707ea11ad5c,
+    and so they do after it: ``benchmarks/side_by_side.py hashes``.)
     """
     import agents  # noqa: F401
     import hrl_torch.multiagent.broadcast
