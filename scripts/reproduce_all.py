@@ -118,8 +118,8 @@ PARTS = (
         "two-taxi",
         "Two taxis: Cooperative and COM-Cooperative HRL (Figures 6.11-6.14)",
         "fig_6_11_to_6_14_two_taxi.py",
-        (),
-        ("--seeds", "1", "--steps", "2000", "--only", "fig_6_11"),
+        ("--eval-every", "50000"),
+        ("--seeds", "2", "--steps", "2000", "--only", "fig_6_11"),  # (it needs 2 seeds)
     ),
 )
 

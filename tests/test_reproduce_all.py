@@ -13,6 +13,7 @@ import reproduce_all  # noqa: E402
 
 #: scripts docs/reproduction.md names that are analyses of a finished run or sweeps, not a part
 NOT_PARTS = {
+    "reproduce_all.py",  # this command itself
     "ship_low_level_check.py",  # reads a finished ship run
     "ship_leave_penalty.py",
     "ship_pretrain.py",
