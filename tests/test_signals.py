@@ -66,6 +66,14 @@ def test_a_signal_during_the_final_evaluation_still_writes_the_checkpoint(
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["per_seed"][0]["final_eval_return"]
     assert f"hrl-torch: {name} at step " in capsys.readouterr().err
+    monkeypatch.setattr(Trainer, "_evaluate_and_log", evaluate)
+    # the budget is spent but the final evaluation was cut: resuming plays it and finishes
+    ckpt = str(run_dir / "checkpoint.pt")
+    assert main(["train", "--resume", ckpt, "--no-progress", "--no-tensorboard"]) == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "finished" and "partial_eval" not in summary
+    state = load_checkpoint(ckpt)["trainer"]
+    assert state["curve"][-1][0] == state["step"] >= 400
 
 
 @pytest.mark.parametrize("name", ["SIGINT", "SIGTERM"])

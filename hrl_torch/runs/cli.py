@@ -38,6 +38,7 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
     ``--domain-module`` modules are also looked for in the working folder, after the rest.
     """
     from hrl_torch.runs import registry
+
     root = os.path.abspath(project) if project is not None else _installed_repository()
     if root is not None:
         if root in sys.path:
@@ -162,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
+
     for name in registry.names():
         try:
             domain = registry.get(name)
@@ -394,7 +396,9 @@ def _continuation(args, state: dict, given: dict, display: dict):
         args.resume, run, **{k: v for k, v in named.items() if v is not None}, **given, **display
     )
     step = int(state["trainer"]["step"])
-    if step >= opts.steps:
+    curve = state["trainer"].get("curve") or []  # (a signal may have cut the final evaluation)
+    evaluated = not run.get("eval_episodes") or bool(curve and int(curve[-1][0]) == step)
+    if step >= opts.steps and evaluated:
         print(
             f"{args.resume}: the run finished at step {step} (budget {opts.steps}); "
             f"nothing to do (pass --steps N > {step} to continue it)"
