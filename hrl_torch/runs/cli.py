@@ -38,7 +38,6 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
     ``--domain-module`` modules are also looked for in the working folder, after the rest.
     """
     from hrl_torch.runs import registry
-
     root = os.path.abspath(project) if project is not None else _installed_repository()
     if root is not None:
         if root in sys.path:
@@ -163,7 +162,6 @@ def _run(args: argparse.Namespace) -> int:
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
-
     for name in registry.names():
         try:
             domain = registry.get(name)
