@@ -10,10 +10,10 @@
   (``--rounds`` times each, so both see the same machine load); prints each run's
   ``train_seconds`` (summary.json) and the ratio of the medians. A checkout from before
   0.2.0's subpackages (``hrl_torch/cli.py``) runs as ``python -m hrl_torch.cli``.
-- ``eval``: ``four-agv-text`` Cooperative HRL trained 2,000 steps (1 seed), then one greedy
+- ``eval``: ``four-agv`` Cooperative HRL trained 2,000 steps (1 seed), then one greedy
   throughput evaluation capped at ``--steps`` event steps, in each checkout (0.2.0 layout
   only); prints its seconds and its numbers (they must be equal).
-- ``ops``: aten ops per greedy evaluation step of the same four-agv-text run (200 steps), in
+- ``ops``: aten ops per greedy evaluation step of the same four-agv run (200 steps), in
   each checkout (deterministic, unlike the seconds on a shared machine).
 - ``hashes``: SHA-256 of the learner's tables after 80 steps (2 seeds x 4 envs) of every
   cooperative configuration, to compare across commits.
@@ -39,7 +39,7 @@ import agents  # noqa: F401
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 opts = RunOptions(seeds=[0], steps=2000, progress=False, tensorboard=False, check_env=False)
-trainer = build_trainer(registry.get("four-agv-text"), "cooperative", opts)
+trainer = build_trainer(registry.get("four-agv"), "cooperative", opts)
 trainer.eval_env, eval_env = None, trainer.eval_env  # train only
 trainer.train()
 trainer.eval_env = eval_env
@@ -64,7 +64,7 @@ class Count(TorchDispatchMode):
         self.count += 1
         return func(*args, **(kwargs or {}))
 opts = RunOptions(seeds=[0], steps=200, progress=False, tensorboard=False, check_env=False)
-trainer = build_trainer(registry.get("four-agv-text"), "cooperative", opts)
+trainer = build_trainer(registry.get("four-agv"), "cooperative", opts)
 trainer.eval_env, eval_env = None, trainer.eval_env
 trainer.train()
 trainer.eval_env = eval_env
@@ -80,9 +80,9 @@ torch.set_num_threads(1)
 import agents  # noqa: F401
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
-for domain, algo in [("trash", "cooperative"), ("two-taxi", "cooperative"),
-                     ("two-taxi", "com-1"), ("four-agv", "cooperative"),
-                     ("four-agv-text", "cooperative")]:
+for domain, algo in [("trash", "cooperative"), ("two-taxi-earlier", "cooperative"),
+                     ("two-taxi-earlier", "com-1"), ("four-agv-earlier", "cooperative"),
+                     ("four-agv", "cooperative")]:
     opts = RunOptions(seeds=[0, 1], envs_per_learner=4, progress=False, check_env=False)
     opts.eval_episodes = 0
     trainer = build_trainer(registry.get(domain), algo, opts)
@@ -114,7 +114,7 @@ def train_seconds(checkout: Path, steps: int) -> float:
 
 
 def greedy_evaluation(checkout: Path, steps: int) -> dict:
-    """Seconds and numbers of one capped four-agv-text greedy evaluation in ``checkout``."""
+    """Seconds and numbers of one capped four-agv greedy evaluation in ``checkout``."""
     cmd = [sys.executable, "-c", EVAL, str(steps)]
     out = subprocess.run(cmd, cwd=checkout, env=_env(checkout), check=True, capture_output=True)
     return json.loads(out.stdout.decode().strip().splitlines()[-1])

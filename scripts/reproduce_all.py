@@ -88,7 +88,7 @@ PARTS = (
     ),
     Part(
         "fig-5-3-text",
-        "The text's reading: 8,750 states (taxi-fuel-text)",
+        "The text's reading: 8,750 states (taxi-fuel)",
         "fig_5_3_taxi_fuel_text.py",
         (),
         ("--seeds", "1", "--steps", "3000", "--algos", "maxq-q"),
@@ -101,8 +101,8 @@ PARTS = (
         ("--algos", "hybrid", "--seeds", "1", "--episodes", "64", "--envs", "8"),
     ),
     Part(
-        "four-agv",
-        "Four-AGV scheduling (Figures 6.4-6.8), four-agv-text",
+        "four-agv-earlier",
+        "Four-AGV scheduling (Figures 6.4-6.8), four-agv",
         "fig_6_4_to_6_8_agv.py",
         ("--variant", "text"),
         ("--variant", "text", "--only", "fig_6_5", "--seeds", "1", "--steps", "1000"),
@@ -115,7 +115,7 @@ PARTS = (
         ("--seeds", "1", "--steps", "3000"),
     ),
     Part(
-        "two-taxi",
+        "two-taxi-earlier",
         "Two taxis: Cooperative and COM-Cooperative HRL (Figures 6.11-6.14)",
         "fig_6_11_to_6_14_two_taxi.py",
         ("--eval-every", "50000"),

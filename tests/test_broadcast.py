@@ -93,7 +93,7 @@ def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
     assert same == (broadcast == "sequential")
 
 
-@pytest.mark.parametrize("domain", ["trash", "two-taxi", "four-agv"])
+@pytest.mark.parametrize("domain", ["trash", "two-taxi-earlier", "four-agv-earlier"])
 def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
     """All n - 1 re-choosing rounds (no host read) equal stopping when no code changed."""
     import agents  # noqa: F401
@@ -114,12 +114,12 @@ def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
         assert torch.equal(value, tables[True][key]), key
 
 
-@pytest.mark.parametrize(("domain", "algo"), [("trash", "cooperative"), ("two-taxi", "com-1")])
+@pytest.mark.parametrize(("domain", "algo"), [("trash", "cooperative"), ("two-taxi-earlier", "com-1")])
 def test_recoded_contexts_learn_the_tables_of_contexts_computed_anew(domain, algo, monkeypatch):
     """The re-choosing rounds' contexts moved by the codes (``RECODE``) equal computed ones.
 
     (Also across the change: on 11345d5 the tables of 80 steps of 2 seeds x 4 envs of trash,
-    two-taxi, two-taxi com-1, four-agv and four-agv-text Cooperative HRL hashed to
+    two-taxi-earlier, two-taxi-earlier com-1, four-agv-earlier and four-agv Cooperative HRL hashed to
     5d95f490672a2e41, 2e06772f7b78ef26, 3cd4140a57b3ca38, d984a93661f524d0, 284cd707ea11ad5c,
     and so they do after it: ``benchmarks/side_by_side.py hashes``.)
     """

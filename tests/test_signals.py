@@ -175,7 +175,7 @@ def test_a_real_sigterm_in_a_minutes_long_final_evaluation_exits_143_within_5_s(
     """The command in its own process; four-AGV's greedy window is 60,000 event steps."""
     root = Path(__file__).resolve().parents[1]
     cmd = [sys.executable, "-m", "hrl_torch.runs.cli", "--project", str(root), "train"]
-    cmd += ["four-agv-text", "--algo", "cooperative", "--seeds", "1", "--steps", "200"]
+    cmd += ["four-agv", "--algo", "cooperative", "--seeds", "1", "--steps", "200"]
     cmd += ["--out", str(tmp_path), "--no-tensorboard"]  # progress on: the bar says "eval"
     env = {**os.environ, "PYTHONPATH": str(root)}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
