@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export RL_LOGGING_LEVEL := WARNING
 
-.PHONY: run test test-all lint bench mutate clean clean-runs
+.PHONY: run test test-all lint bench mutate reproduce reproduce-quick clean clean-runs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -29,6 +29,14 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py
+
+# every table and figure of docs/reproduction.md from scratch (hours; times in runs/reproduce/times.md)
+reproduce: $(STAMP)
+	$(BIN)/python scripts/reproduce_all.py
+
+# the same pipeline on one or two seeds and a few thousand steps per part (minutes)
+reproduce-quick: $(STAMP)
+	$(BIN)/python scripts/reproduce_all.py --quick
 
 # one-line bugs put into the core, one at a time, against the fast suite (not part of CI)
 mutate: $(STAMP)

@@ -112,3 +112,33 @@ def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
         tables[static] = trainer.learner.state_dict()
     for key, value in tables[False].items():
         assert torch.equal(value, tables[True][key]), key
+
+
+@pytest.mark.parametrize(
+    ("domain", "algo"), [("trash", "cooperative"), ("two-taxi-earlier", "com-1")]
+)
+def test_recoded_contexts_learn_the_tables_of_contexts_computed_anew(domain, algo, monkeypatch):
+    """The re-choosing rounds' contexts moved by the codes (``RECODE``) equal computed ones.
+
+    (Also across the change: on 11345d5 the tables of 80 steps of 2 seeds x 4 envs of trash,
+    two-taxi-earlier, two-taxi-earlier com-1, four-agv-earlier and four-agv Cooperative HRL
+    hashed to
+    5d95f490672a2e41, 2e06772f7b78ef26, 3cd4140a57b3ca38, d984a93661f524d0, 284cd707ea11ad5c,
+    and so they do after it: ``benchmarks/side_by_side.py hashes``.)
+    """
+    import agents  # noqa: F401
+    import hrl_torch.multiagent.broadcast
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
+
+    tables = {}
+    for recode in (False, True):
+        monkeypatch.setattr(hrl_torch.multiagent.broadcast, "RECODE", recode)
+        opts = RunOptions(seeds=[0, 1], envs_per_learner=4, progress=False, check_env=False)
+        opts.eval_episodes = 0
+        trainer = build_trainer(registry.get(domain), algo, opts)
+        for _ in range(60):
+            trainer.train_step()
+        tables[recode] = trainer.learner.state_dict()
+    for key, value in tables[False].items():
+        assert torch.equal(value, tables[True][key]), key

@@ -3,7 +3,8 @@
 - ``raise_on_signals`` (the CLI, around everything): SIGTERM raises ``Interrupted`` as SIGINT
   raises ``KeyboardInterrupt``, so a start cut short cleans up the same way for both.
 - ``StopOnSignal`` (training, its final evaluation and save; the summary after it): the first
-  signal is recorded, not raised, and the phase finishes cleanly.
+  signal is recorded, not raised, and the phase finishes cleanly. Long loops inside it (a
+  greedy evaluation) poll ``stop_requested()`` every step and stop within one step.
 - ``signals_deferred`` (a checkpoint write): both signals wait until the write is done, so no
   second signal cuts it and leaves a stale temporary file.
 """
@@ -69,9 +70,11 @@ class StopOnSignal:
 
     ``signal`` holds its name; the previous handlers come back at once, so a second signal
     acts as usual. Outside the main thread (where handlers cannot be set) nothing changes.
+    While one is entered, ``stop_requested()`` says whether it caught a signal.
     """
 
     SIGNALS = CAUGHT
+    _active: list[StopOnSignal] = []  # entered and not yet left, innermost last
 
     def __init__(self) -> None:
         self.signal: str | None = None
@@ -80,6 +83,7 @@ class StopOnSignal:
     def __enter__(self) -> StopOnSignal:
         if threading.current_thread() is threading.main_thread():
             self._previous = {s: signal.signal(s, self._record) for s in self.SIGNALS}
+        StopOnSignal._active.append(self)
         return self
 
     def _record(self, signum, frame) -> None:
@@ -93,3 +97,17 @@ class StopOnSignal:
 
     def __exit__(self, *exc) -> None:
         self._restore()
+        if self in StopOnSignal._active:
+            StopOnSignal._active.remove(self)
+
+
+def stop_requested() -> str | None:
+    """The signal an entered ``StopOnSignal`` caught (its name), else ``None``.
+
+    A loop that may run long inside a guarded phase (a greedy evaluation of minutes) asks this
+    every step and ends early when it is set; it costs a list lookup.
+    """
+    for stop in StopOnSignal._active:
+        if stop.signal is not None:
+            return stop.signal
+    return None

@@ -14,6 +14,12 @@ have seen differs are restored to their stacks before the choice and choose agai
 random numbers (a row's stream never depends on other rows), until no row changes (at most
 ``n - 1`` rounds: agent ``j``'s choice is final once agents ``0..j-1``'s are). A step without
 simultaneous choices costs one evaluation, as before.
+
+A code enters the context only through the cooperative subtasks' abstract states
+(``CooperativeSubtask.abstract = base * K + code``), so a context with other codes is the
+evaluated one with those columns moved by the codes' difference and the learner's values
+evaluated again (``recoded``): the graph's predicates are not called again (the same numbers;
+``RECODE = False`` computes the whole context, as before).
 """
 
 from __future__ import annotations
@@ -58,10 +64,35 @@ def same_draws(policy) -> SameDraws:
     return SameDrawsRows(policy) if isinstance(policy, SelectsRows) else SameDraws(policy)
 
 
-
 #: ``None``: stop the re-choosing rounds early on the CPU only; ``True``: never (every device,
 #: no host read); ``False``: always (the fastest on a CPU, reads the device on a GPU)
 STATIC_ROUNDS: bool | None = None
+#: a context with other codes from the evaluated one (``recoded``); ``False``: computed anew
+RECODE = True
+
+
+def recoded(agent, ctx, rows):
+    """The context of ``rows`` (``ctx``'s observations with other codes), with its values.
+
+    Only the cooperative subtasks' abstract states depend on a code, by ``+ code``, so they
+    move by the difference of the codes; every other field is ``ctx``'s. Where that does not
+    hold (a tabulated graph, invocation memory, frozen values) the context is computed anew.
+    """
+    if not RECODE or ctx is None or ctx.table_row is not None or agent.graph.memory_nodes:
+        return agent.context(rows)
+    if agent.frozen is not None:
+        return agent.context(rows)
+    abstract = ctx.abstract
+    for level, column in zip(agent.levels, agent.code_columns, strict=True):
+        shift = rows[level.key] - ctx.obs[level.key]
+        abstract = abstract + shift[:, None] * column
+    new = type(ctx)(
+        rows, ctx.learner, abstract, ctx.terminated, ctx.blocked, ctx.available, ctx.features
+    )
+    agent.learner.evaluate_checked(new)
+    agent.ctx = new
+    return new
+
 
 def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.Tensor:
     """The others' ``U_l`` code each agent row sees when it chooses in agent order ``[B * n]``.
@@ -100,7 +131,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     cpu = ex.device.type == "cpu" and not ex.static_guard  # (a replayed step: static)
     stop_early = cpu if STATIC_ROUNDS is None else not STATIC_ROUNDS
     if ctx is None or not stop_early or _changed(agent, rows, used):
-        ctx = agent.context(_with_codes(agent, rows, used))
+        ctx = recoded(agent, ctx, _with_codes(agent, rows, used))
     action = ex.act(ctx, agent.policy, agent.schedule_clock)
     invoked = ex.invoked
     for _ in range(n - 1):
@@ -113,7 +144,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
             break
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
-        ctx = agent.context(_with_codes(agent, rows, codes))
+        ctx = recoded(agent, ctx, _with_codes(agent, rows, codes))
         action = ex.act(ctx, same_draws(agent.policy), agent.schedule_clock)
         invoked = torch.where(redo[:, None], ex.invoked, invoked)
         used = codes
@@ -121,7 +152,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
     codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
     if not stop_early or any(bool((c != u).any()) for c, u in zip(codes, used, strict=True)):
-        ctx = agent.context(_with_codes(agent, rows, codes))  # the targets' codes
+        ctx = recoded(agent, ctx, _with_codes(agent, rows, codes))  # the targets' codes
     return action, ctx
 
 

@@ -338,6 +338,11 @@ class MultiAgentAgent(HierarchicalAgent):
             for k, names in enumerate(cooperation.levels if cooperation else ())
             if communication is not None and communication.com in names
         }
+        #: per level ``[n_nodes]`` long: 1 at its cooperative subtasks (``broadcast.recoded``)
+        self.code_columns: list[torch.Tensor] = []
+        for names in cooperation.levels if cooperation else ():
+            hit = torch.tensor([name in names for name in self.graph.names], dtype=torch.long)
+            self.code_columns.append(hit.to(self.graph.node_children.device))
 
     def set_policy(self, policy) -> None:
         """Act with ``policy`` (under tau_all wrapped so that finished agents wait)."""

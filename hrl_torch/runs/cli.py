@@ -432,7 +432,9 @@ def _continuation(args, state: dict, given: dict, display: dict):
         args.resume, run, **{k: v for k, v in named.items() if v is not None}, **given, **display
     )
     step = int(state["trainer"]["step"])
-    if step >= opts.steps:
+    curve = state["trainer"].get("curve") or []  # (a signal may have cut the final evaluation)
+    evaluated = not run.get("eval_episodes") or bool(curve and int(curve[-1][0]) == step)
+    if step >= opts.steps and evaluated:
         print(
             f"{args.resume}: the run finished at step {step} (budget {opts.steps}); "
             f"nothing to do (pass --steps N > {step} to continue it)"

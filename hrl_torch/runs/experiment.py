@@ -419,11 +419,13 @@ def _summary(domain, algo, opts, trainer, result, wall: float, plots, run_dir: P
         "status": "interrupted" if result.interrupted else "finished",
         "interrupted_by": result.interrupted,
         "checkpoint": str(run_dir / "checkpoint.pt"),
+        **({"partial_eval": trainer.partial_eval} if trainer.partial_eval else {}),
         "backend": opts.backend,
         "seeds": list(opts.seeds),
         "envs_per_learner": trainer.E,
         "env_steps_per_learner": result.env_steps_per_learner,
         "train_seconds": round(result.train_seconds, 3),
+        "eval_seconds": round(result.eval_seconds, 3),  # the greedy evaluations' share of wall
         "wall_seconds": round(wall, 3),
         "env_steps_per_second": round(result.env_steps_per_second, 1),
         "threshold": trainer.config.threshold,
@@ -509,6 +511,7 @@ def format_summary(summary: dict) -> str:
         f"{len(summary['seeds'])} seeds x {summary['envs_per_learner']} envs, "
         f"{summary['env_steps_per_learner']} env steps per seed in {summary['train_seconds']} s "
         f"({summary['env_steps_per_second']:.0f} env steps/s)"
+        + (f", greedy evaluations {summary['eval_seconds']} s" if "eval_seconds" in summary else "")
     ]
     for r in summary["per_seed"]:
         if "final_eval_throughput" in r:  # continuing tasks (hrl_torch.training.continuing)

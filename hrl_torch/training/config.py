@@ -75,9 +75,12 @@ class TrainResult:
     final_steps: list[float] = field(default_factory=list)
     env_steps: list[int] = field(default_factory=list)  # real env steps per learner
     interrupted: str | None = None  # "SIGINT" / "SIGTERM": stopped early, checkpoint written
+    eval_seconds: float = 0.0  # time spent in greedy evaluations (beside ``train_seconds``)
 
     @classmethod
-    def of(cls, history, step: int, seconds: float, real_steps, interrupted) -> TrainResult:
+    def of(
+        cls, history, step: int, seconds: float, real_steps, interrupted, eval_seconds=0.0
+    ) -> TrainResult:
         """The result of a run whose evaluations ``history`` (``EvalHistory``) recorded."""
         nan = [float("nan")] * len(history.first_hit)
         final, success, steps = nan, nan, nan
@@ -96,4 +99,5 @@ class TrainResult:
             steps,
             [int(x) for x in real_steps],
             interrupted,
+            eval_seconds,
         )

@@ -34,6 +34,7 @@ from tqdm import tqdm
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import argmax_last
+from hrl_torch.common.signals import stop_requested
 from hrl_torch.training.deferred import deferred_meanwhile, raise_pending
 from hrl_torch.training.evaluation import Evaluator
 
@@ -105,19 +106,28 @@ class ThroughputEvaluator(Evaluator):
             sums = self._play(trainer, agent, env, action, n_steps, [])
         per_learner = sums.view(self._n_sums, -1, env.envs_per_learner).sum(-1).cpu()
         throughput, rate = _rates(per_learner, self.scale)
-        self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
-        if self.ratio is not None:
-            self.last_eval[self.ratio_tags[0]] = _ratio(per_learner).tolist()
+        if self.last_partial is None:  # (a window a signal cut short keeps the last full one)
+            self.last_eval = {self.tags[0]: throughput.tolist(), self.tags[1]: rate.tolist()}
+            if self.ratio is not None:
+                self.last_eval[self.ratio_tags[0]] = _ratio(per_learner).tolist()
         return throughput, rate
 
     def _play(self, trainer, agent, env, action, n_steps: int, checks: list) -> torch.Tensor:
-        """``[n_sums, B]``: the amounts of the window's steps (``checks`` read every 100)."""
+        """``[n_sums, B]``: the amounts of the window's steps (``checks`` read every 100).
+
+        A signal (``signals.stop_requested``, polled every step) ends the window early and sets
+        ``last_partial``: the sums then cover the steps played.
+        """
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
         bar = tqdm(total=n_steps, desc="eval", unit="step", leave=False,
                    disable=not trainer.config.progress)  # fmt: skip
+        self.last_partial = None
         for k in range(n_steps):
+            self.last_partial = stop_requested()
+            if self.last_partial is not None:
+                break
             bar.update(1)
             td = env.step(action)
             if k % 100 == 99:

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import entries
+from hrl_torch.common.signals import stop_requested
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
 
@@ -52,6 +53,8 @@ class Evaluator:
         last_eval: further logged numbers of the latest evaluation (tag -> per learner).
         last_records: the latest evaluation's episodes (``None``: it plays none).
         last_steps: the latest evaluation's mean episode length per learner (``None``: none).
+        last_partial: the signal (``"SIGTERM"``) that cut the latest evaluation short
+            (``signals.stop_requested``), or ``None``: it ran to its end.
     """
 
     continuing: ClassVar[bool] = False
@@ -61,6 +64,7 @@ class Evaluator:
     last_eval: Mapping[str, list[float]] = MappingProxyType({})
     last_records: TensorDict | None = None
     last_steps: torch.Tensor | None = None
+    last_partial: str | None = None
 
     def evaluate(self, trainer) -> tuple[torch.Tensor, torch.Tensor]:
         """Two numbers per learner ``([P], [P])`` for ``trainer``'s current tables."""
@@ -92,9 +96,10 @@ class EpisodicEvaluator(Evaluator):
         """Greedy episodes on ``trainer.eval_env``: mean return and success rate ``[P]``.
 
         ``learners``: only these learners' episodes are played (``episodes``); the others'
-        numbers are NaN.
+        numbers are NaN. A signal (``signals.stop_requested``) ends the episodes within one
+        step; ``last_partial`` then names it and the unfinished episodes count as truncated.
         """
-        records = self.episodes(trainer, learners)
+        records, self.last_partial = _episodes(trainer, learners)
         self.last_records = records
         n = trainer.eval_env.envs_per_learner
         means = [
@@ -129,27 +134,32 @@ class EpisodicEvaluator(Evaluator):
         other rows' records stay at 0 length, unfinished. An env or agent that cannot split
         rows (``subset_safe``, ``HierarchicalAgent.subset``) plays them all.
         """
-        env, cfg = trainer.eval_env, trainer.config
-        if env is None:
-            raise ValueError("no evaluation env: give the Trainer an eval_env (eval_episodes > 0)")
-        if env.rng is not None:
-            env.rng.load_state_dict({"counter": 0})
-        agent = trainer.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
-        agent.freeze_values(cfg.eval_max_steps)  # the tables are frozen: values per state once
-        start = env.reset()
-        action = agent.start(start)
-        episodes = EvalEpisodes(env.batch_size, env.device)
-        if learners is not None and env.subset_safe:  # only these learners' rows play
-            playing = _only(learners, trainer.P, agent, env, action, episodes)
-            if playing is None:  # nothing to play
-                return episodes.records(start, trainer.env.seeds, env.envs_per_learner)
-            agent, env, action = playing
-        if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
-            with deferred_meanwhile(env, agent.executor) as checks:
-                _play(trainer, agent, env, action, episodes, checks)
-        else:
-            _play(trainer, agent, env, action, episodes, None)
-        return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
+        return _episodes(trainer, learners)[0]
+
+
+def _episodes(trainer, learners=None) -> tuple[TensorDict, str | None]:
+    """``EpisodicEvaluator.episodes`` and the signal that cut them short (``None``: none)."""
+    env, cfg = trainer.eval_env, trainer.config
+    if env is None:
+        raise ValueError("no evaluation env: give the Trainer an eval_env (eval_episodes > 0)")
+    if env.rng is not None:
+        env.rng.load_state_dict({"counter": 0})
+    agent = trainer.evaluation_agent(env, "eval-explore")  # its tie-breaking starts afresh
+    agent.freeze_values(cfg.eval_max_steps)  # the tables are frozen: values per state once
+    start = env.reset()
+    action = agent.start(start)
+    episodes = EvalEpisodes(env.batch_size, env.device)
+    if learners is not None and env.subset_safe:  # only these learners' rows play
+        playing = _only(learners, trainer.P, agent, env, action, episodes)
+        if playing is None:  # nothing to play
+            return episodes.records(start, trainer.env.seeds, env.envs_per_learner), None
+        agent, env, action = playing
+    if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
+        with deferred_meanwhile(env, agent.executor) as checks:
+            cut = _play(trainer, agent, env, action, episodes, checks)
+    else:
+        cut = _play(trainer, agent, env, action, episodes, None)
+    return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner), cut
 
 
 #: off the CPU, greedy episodes read the device (rows still playing, checks) every this many
@@ -157,8 +167,11 @@ class EpisodicEvaluator(Evaluator):
 READ_EVERY = 8
 
 
-def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | None) -> None:
+def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | None):
     """Step the greedy episodes to their ends or ``eval_max_steps`` (``episodes.episodes``).
+
+    Returns the signal that ended them early (``signals.stop_requested``; polled every step,
+    so a SIGTERM ends a minutes-long evaluation within a step), or ``None``.
 
     ``checks``: the agent's deferred checks (``deferred_meanwhile``), or ``None`` (immediate
     checks, a read every step: the CPU). With them the device is read every ``READ_EVERY``
@@ -173,7 +186,11 @@ def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | No
     finite_only = trainer.executor_config.on_bad_step == "skip"
     bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
                disable=not cfg.progress)  # fmt: skip
+    cut = None
     for t in range(cfg.eval_max_steps):
+        cut = stop_requested()
+        if cut is not None:
+            break
         read = (t + 1) % read_every == 0 or t + 1 == cfg.eval_max_steps
         if decisions_on:
             episodes.record_root_decisions(agent.executor, graph, read)
@@ -197,6 +214,7 @@ def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | No
     raise_pending(checks)
     if decisions_on:
         episodes.record_root_decisions(agent.executor, graph, True)
+    return cut
 
 
 class EvalHistory:

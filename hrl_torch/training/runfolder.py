@@ -21,7 +21,11 @@ from hrl_torch.training.runlog import EPISODE_COLUMNS, PROGRESS_HEADER
 FILES = frozenset(
     {".lock", "hparams.json", "summary.json", "progress.csv", "eval_episodes.csv", "checkpoint.pt"}
 )
-HEADERS = {"progress.csv": PROGRESS_HEADER, "eval_episodes.csv": ",".join(EPISODE_COLUMNS) + "\n"}
+#: the headers each CSV may start with (eval_episodes.csv: begun before its ``partial`` column too)
+HEADERS = {
+    "progress.csv": (PROGRESS_HEADER,),
+    "eval_episodes.csv": (",".join(EPISODE_COLUMNS) + "\n", ",".join(EPISODE_COLUMNS[:-1]) + "\n"),
+}
 _SEED_FOLDER = re.compile(r"tb/seed_-?\d+")
 
 
@@ -48,13 +52,14 @@ def check_run_folder(run_dir: str | Path) -> dict | None:
     if not run_dir.is_dir():
         raise RunFolderError(f"{run_dir} is not a folder")
     check_tree(run_dir, entry_kind)
-    for name, header in HEADERS.items():
+    for name, headers in HEADERS.items():
         path = run_dir / name
         if not path.exists():
             continue
+        header = headers[0]
         with open(path, "rb") as f:
-            first = f.readline(len(header) + 1)
-        if first and first.decode("utf-8", "replace") != header:
+            first = f.readline(max(map(len, headers)) + 1)
+        if first and first.decode("utf-8", "replace") not in headers:
             shown = first.decode("utf-8", "replace").strip()[:40]
             raise RunFolderError(
                 f"{path} does not start with hrl-torch's header ({header.strip()[:40]}...; "

@@ -6,7 +6,8 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
                       ``losses/<subtask>/``, ``perf/``; hyperparameters once as text)
     progress.csv      long format, one row per (step, seed, metric): step,seed,metric,value
     eval_episodes.csv every greedy evaluation episode: step, seed, episode, return, length,
-                      success, truncated, start (its reset observation), the root's decisions
+                      success, truncated, start (its reset observation), the root's decisions,
+                      partial (1: a signal cut that evaluation short)
     <metric>.png      mean and 95% interval over seeds of each curve metric
     summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
     checkpoint.pt     the latest checkpoint (when checkpointing is on)
@@ -37,6 +38,7 @@ from hrl_torch.common.safe_files import RunFolderError, open_own, replace_file, 
 def code_version() -> dict:
     """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
     from hrl_torch import __version__
+
     root = Path(__file__).resolve().parents[2]  # hrl_torch/training/runlog.py
     out = {"version": __version__, "commit": None, "dirty": None}
     try:
@@ -192,12 +194,17 @@ class RunLogger:
         with open_own(self.csv_path, "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerows(rows)
 
-    def log_episodes(self, step: int, records, node_names: Sequence[str]) -> None:
+    def log_episodes(
+        self, step: int, records, node_names: Sequence[str], partial: bool = False
+    ) -> None:
         """Append one evaluation's episodes (``Trainer.evaluate_episodes``) to the CSV.
 
-        ``eval_episodes.csv`` gets the start's fields and the root's decisions by name.
+        ``eval_episodes.csv`` gets the start's fields and the root's decisions by name;
+        ``partial``: a signal cut the evaluation short (its ``partial`` column is 1; a file
+        begun before that column existed gets none).
         """
         new = not self.episodes_path.exists() or self.episodes_path.stat().st_size == 0
+        marked = new or _header(self.episodes_path).endswith(",partial")
         rows = []
         for r in range(records.batch_size[0]):
             n = int(records["n_decisions"][r])
@@ -213,6 +220,7 @@ class RunLogger:
                     int(records["truncated"][r]),
                     fields_text(records["start"][r]),
                     " ".join(names) + (" ..." if n > len(names) else ""),
+                    *((int(partial),) if marked else ()),
                 )
             )
         with open_own(self.episodes_path, "a", newline="") as f:
@@ -244,17 +252,20 @@ class RunLogger:
 
 PROGRESS_HEADER = "step,seed,metric,value\n"
 EPISODE_COLUMNS = (
-    "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions"
+    "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions",
+    "partial",
 )  # fmt: skip
 
 
 def read_episodes(run_dir: str | Path, step: int | None = None) -> list[dict]:
     """The episodes of a run folder's latest evaluation (or the one at ``step``), worst first.
 
-    Read from ``eval_episodes.csv``, numbers parsed.
+    Read from ``eval_episodes.csv``, numbers parsed; the rows of an evaluation a signal cut
+    short (``partial``) only where no complete evaluation was logged.
     """
     with open(Path(run_dir) / "eval_episodes.csv", newline="") as f:
         rows = list(csv.DictReader(f))
+    rows = [r for r in rows if r.get("partial") != "1"] or rows
     if not rows:
         return []
     at = max(int(r["step"]) for r in rows) if step is None else step
@@ -272,6 +283,12 @@ def read_episodes(run_dir: str | Path, step: int | None = None) -> list[dict]:
             }
         )
     return sorted(out, key=lambda r: (r["return"], r["seed"], r["episode"]))
+
+
+def _header(path: Path) -> str:
+    """The first line of a CSV file."""
+    with open(path) as f:
+        return f.readline().rstrip("\r\n")
 
 
 def fields_text(td) -> str:

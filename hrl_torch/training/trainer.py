@@ -113,6 +113,7 @@ class Trainer:
         #: what a checkpoint records of the run (``hrl_torch.runs.experiment.run_config``)
         self.run_config: dict | None = None
         self.last_eval_records: TensorDict | None = None  # the latest evaluation's episodes
+        self.partial_eval: dict | None = None  # an evaluation a signal cut short (step, values)
         self.checkpointer = Checkpointer(
             lambda: {
                 "learner": self.learner,
@@ -170,7 +171,8 @@ class Trainer:
 
         SIGINT (Ctrl-C) or SIGTERM ends the run after the current step: a checkpoint is written
         (with ``run_dir``) and the result says ``interrupted``; a second signal acts as usual.
-        A signal during the final evaluation lets it finish and the checkpoint be written.
+        A signal during an evaluation ends it within a step (``partial_eval``, not on the curve)
+        and the checkpoint is written.
         """
         cfg = self.config
         total = cfg.steps if steps is None else steps
@@ -209,7 +211,7 @@ class Trainer:
             self.counters.real_steps,
             stop.signal,
         )
-        return TrainResult.of(*args)
+        return TrainResult.of(*args, eval_seconds=self.counters.eval_seconds)
 
     def _after_step(self, cfg: TrainConfig, run_dir) -> None:
         """Log, evaluate and checkpoint when their intervals are due (deferred checks first)."""
@@ -272,11 +274,18 @@ class Trainer:
         start = time.perf_counter()
         mean, success = self.evaluate()
         self.eval_seconds = time.perf_counter() - start  # the cost of one evaluation
+        self.counters.eval_seconds += self.eval_seconds
+        cut = self.evaluator.last_partial  # a signal cut it short: logged, not on the curve
         if self.logger and self.last_eval_records is not None:
-            self.logger.log_episodes(self.step, self.last_eval_records, self.graph.names)
+            records, names = self.last_eval_records, self.graph.names
+            self.logger.log_episodes(self.step, records, names, partial=cut is not None)
         values = mean.tolist()
         if self.logger or self.config.progress:  # the result as it happens (CLI runs)
-            tqdm.write(eval_line(self.step, self.evaluator.tags[0], values, self.eval_seconds))
+            line = eval_line(self.step, self.evaluator.tags[0], values, self.eval_seconds)
+            tqdm.write(line + (f" (partial: {cut})" if cut else ""))
+        if cut is not None:
+            self.partial_eval = {"step": self.step, "signal": cut, "values": values}
+            return
         self.history.record(
             self.step,
             values,
