@@ -19,6 +19,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 from pathlib import Path
 
 from hrl_torch import __version__
@@ -38,6 +39,7 @@ def _load_domains(project: str | None, modules: list[str]) -> None:
     ``--domain-module`` modules are also looked for in the working folder, after the rest.
     """
     from hrl_torch.runs import registry
+
     root = os.path.abspath(project) if project is not None else _installed_repository()
     if root is not None:
         if root in sys.path:
@@ -162,6 +164,7 @@ def _run(args: argparse.Namespace) -> int:
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
+
     for name in registry.names():
         try:
             domain = registry.get(name)
@@ -204,7 +207,22 @@ def _check(name: str, algo: str | None) -> int:
         print(f"{name} --algo {a}: " + ("ok" if not findings else f"{len(findings)} finding(s)"))
         for finding in findings:
             print(f"  - {finding}", flush=True)
+        for warning in _start_warnings(domain, a):
+            print(f"  - warning: {warning}", flush=True)
     return 1 if broken else 0
+
+
+def _start_warnings(domain, algo: str) -> list[str]:
+    """What the trainer's start would warn about the algorithm's initial values (not errors)."""
+    from hrl_torch.learners.init_check import discount_traps, warn_discount_trap
+
+    spec = domain.algos[algo]
+    learner = spec.make_learner(spec.make_graph(), 1)
+    if not discount_traps(learner):
+        return []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return warn_discount_trap(learner)
 
 
 def _training_seconds(domain, algo: str, steps: int = 10) -> float:

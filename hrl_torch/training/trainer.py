@@ -25,6 +25,7 @@ from hrl_torch.common.threads import warn_cpu_threads
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.learners.base import Learner
+from hrl_torch.learners.init_check import warn_discount_trap
 from hrl_torch.modules.exploration import Exploration, Greedy
 from hrl_torch.training import metrics
 from hrl_torch.training.agent import AgentFactory, HierarchicalAgent, checked_factory
@@ -83,6 +84,7 @@ class Trainer:
         agent_factory = compat.trainer_agent_factory(agent_factory, multiagent, env)
         self.env, self.graph, self.learner, self.exploration = env, graph, learner, exploration
         warn_cpu_threads(env.device)
+        warn_discount_trap(learner, stacklevel=3)  # (before any step: the initial values)
         self.collector = collector
         self.evaluator = EpisodicEvaluator() if evaluator is None else evaluator
         self.config = config or TrainConfig()
