@@ -77,3 +77,11 @@ def _coop():
     from agents.four_agv_text import COOPERATION
 
     return COOPERATION, 4
+
+
+def test_hrl_torch_check_prints_the_warning_per_algorithm():
+    from hrl_torch.runs.cli import _start_warnings
+
+    (line,) = _start_warnings(registry.get("trash"), "selfish")
+    assert "Root (-10)" in line and "gamma 0.95" in line
+    assert _start_warnings(registry.get("four-agv-text"), "selfish") == []
