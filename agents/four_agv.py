@@ -1,8 +1,8 @@
 """The four-AGV task graph of Figure 6.3 and the AGV dispatching rules of Figure 6.7.
 
-This is the ``four-agv`` domain, the first reading of Section 6.4: jobs end when their item is
+This is the ``four-agv-earlier`` domain, the first reading of Section 6.4: jobs end when their item is
 gone, the root sees which jobs can start, each AGV learns from its own deliveries and the rules
-are centralised with reservations. ``agents/four_agv_text.py`` (``four-agv-text``) is the
+are centralised with reservations. ``agents/four_agv_text.py`` (``four-agv``) is the
 reading closer to the text (committed jobs that wait, a buffer-level root, one team reward,
 per-AGV rules); both are kept and measured (``docs/reproduction.md``).
 
@@ -488,7 +488,7 @@ def _algos() -> dict[str, AlgoSpec]:
 
 
 DOMAIN = DomainSpec(
-    name="four-agv",
+    name="four-agv-earlier",
     description="four-AGV scheduling (Figure 6.2, Table 6.1), continuous time, event-driven",
     make_env=make_env,
     algos=_algos(),

@@ -1,6 +1,6 @@
 """The four-AGV task as Section 6.4 describes it: committed jobs, waiting, a team reward.
 
-The ``four-agv-text`` domain; ``four-agv`` (``agents/four_agv.py``) is the earlier reading, kept
+The ``four-agv`` domain; ``four-agv-earlier`` (``agents/four_agv.py``) is the earlier reading, kept
 for comparison. The env is the same ``FourAGVEnv`` (Figure 6.2, Table 6.1); what differs:
 
 * **Committed jobs.** ``DM_i`` may start whenever the AGV is empty and ``Di`` has room,
@@ -332,7 +332,7 @@ def make_env(
 def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
     """Team assemblies per 1,000 s: greedy in ``[200, 1200)`` s of a fresh system; in training.
 
-    Longer than ``four-agv``'s window (``[50, 550)`` s): with committed jobs and 2 s moves
+    Longer than ``four-agv-earlier``'s window (``[50, 550)`` s): with committed jobs and 2 s moves
     the system needs a few hundred seconds to fill its buffers.
     """
     return ThroughputEvaluator(
@@ -398,7 +398,7 @@ def _algos() -> dict[str, AlgoSpec]:
 
 
 DOMAIN = DomainSpec(
-    name="four-agv-text",
+    name="four-agv",
     description="four-AGV scheduling as Section 6.4 reads: committed waiting jobs, team reward",
     make_env=make_env,
     algos=_algos(),

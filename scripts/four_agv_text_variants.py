@@ -1,6 +1,6 @@
-"""One measured change at a time on ``four-agv-text`` (issue 33): train, then greedy throughput.
+"""One measured change at a time on ``four-agv`` (issue 33): train, then greedy throughput.
 
-Trains a registered learner of ``four-agv-text`` (``--algo``) with its step size, discount or
+Trains a registered learner of ``four-agv`` (``--algo``) with its step size, discount or
 budget changed as asked, then measures its greedy throughput (assemblies per 1,000 s) in a
 window ``[--burn-in, --burn-in + --window)`` s of a fresh system, ``--rows`` rows per seed; the
 per-AGV rules (``--rules``) run in the same window on the same seeds for the reference. Prints
@@ -37,7 +37,7 @@ def _alpha(text: str):
 
 def run(args, algo: str, learn: bool) -> dict:
     """One population run of ``algo`` (a learner with the asked changes, or a rule)."""
-    dom = registry.get("four-agv-text")
+    dom = registry.get("four-agv")
     spec = dom.algos[algo]
     steps = args.steps if learn else 1
     learner = spec.learner

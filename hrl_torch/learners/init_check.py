@@ -4,7 +4,7 @@ A discounted learner's completion target after child ``a`` ran for ``tau`` is
 ``gamma^tau * V(i, s')`` (Dietterich's Table 4, Equation 3.5 in continuous time). While
 ``V(i, s')`` is still near a negative start ``v0``, that target is ``gamma^tau * v0``: the
 longer the child ran, the *higher* (less negative) it is, so the children that take longest
-(waiting, driving to where nothing is) look best until learning undoes it. On four-agv-text the
+(waiting, driving to where nothing is) look best until learning undoes it. On four-agv the
 root started at the subtasks' step cost (-49.96): a 20 s wait scaled it by 0.54, a 30 ms job
 by 0.999, and the greedy root chose jobs whose item was absent (docs/defaults.md, "The
 discount trap").

@@ -6,7 +6,7 @@ the likelihood-ratio term ``grad mu(a|s) / mu(a|s)`` of Equation 5.3 as a sparse
 ``(index, score)`` into ``theta``: the eligibility ``z`` of Algorithm 3 (line 14) and the update
 ``theta += alpha * R * z`` (line 16) are ``index_add_`` of such pairs.
 
-- ``SoftmaxPolicyHead``: one parameter per (state, child), as HPGRL on taxi-fuel (Section
+- ``SoftmaxPolicyHead``: one parameter per (state, child), as HPGRL on taxi-fuel-earlier (Section
   5.2.1): ``mu(a|s) = exp(theta[s, a]) / sum_b exp(theta[s, b])`` over available children; its
   likelihood ratio w.r.t. ``theta[s, :]`` is ``onehot(a) - mu(.|s)``.
 - ``TileGaussianPolicyHead``: the low-level ship policy (Section 5.3): ``u ~ N(A, sigma^2)``

@@ -1,4 +1,4 @@
-"""The ``four-agv-text`` variant: committed waiting jobs, buffer-level root, team reward,
+"""The ``four-agv`` variant: committed waiting jobs, buffer-level root, team reward,
 per-AGV rules without reservations."""
 
 import pytest
@@ -117,7 +117,7 @@ def test_jobs_are_committed_and_wait_at_an_empty_bay_or_a_full_buffer():
 
 
 # ---------------------------------------------------------------- team reward
-@pytest.mark.parametrize(("domain", "each"), [("four-agv-text", 2.0), ("four-agv", 1.0)])
+@pytest.mark.parametrize(("domain", "each"), [("four-agv", 2.0), ("four-agv-earlier", 1.0)])
 def test_every_agent_receives_the_team_s_reward(domain, each):
     env = registry.get(domain).make_env([0], 1, n_agents=2)
     env.reset()
@@ -202,7 +202,7 @@ def test_a_lost_race_waits_at_the_bay_and_completes_when_the_next_part_comes():
 
 
 def test_registered_text_domain_keeps_the_old_one():
-    text, old = registry.get("four-agv-text"), registry.get("four-agv")
+    text, old = registry.get("four-agv"), registry.get("four-agv-earlier")
     assert set(text.algos) >= {"cooperative", "selfish", "single", "cooperative-2s", "fcfs"}
     assert text.algos["cooperative"].multiagent is not None
     assert text.algos["selfish-2s"].env_options["timing"] == FIGURE_6_5

@@ -17,7 +17,7 @@ from hrl_torch.runs import registry
 
 @pytest.mark.parametrize("algo", ["selfish", "cooperative"])
 def test_the_root_of_four_agv_text_starts_at_zero(algo):
-    spec = registry.get("four-agv-text").algos[algo]
+    spec = registry.get("four-agv").algos[algo]
     learner = spec.make_learner(spec.make_graph(), 2)
     root = learner.heads["Root"]
     assert torch.count_nonzero(root["C"]) == 0
@@ -84,4 +84,4 @@ def test_hrl_torch_check_prints_the_warning_per_algorithm():
 
     (line,) = _start_warnings(registry.get("trash"), "selfish")
     assert "Root (-10)" in line and "gamma 0.95" in line
-    assert _start_warnings(registry.get("four-agv-text"), "selfish") == []
+    assert _start_warnings(registry.get("four-agv"), "selfish") == []
