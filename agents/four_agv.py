@@ -111,7 +111,7 @@ from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
-from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.modules.exploration import Schedule, linear_epsilon
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig
@@ -365,7 +365,7 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
 LONGEST_ROUTE = 50
 
 
-def internal_init(timing: FourAGVTiming = TABLE_6_1) -> float:
+def internal_init(timing: FourAGVTiming = TABLE_6_1, gamma: float = GAMMA) -> float:
     """Initial internal completions: the discounted step cost of the longest route.
 
     Internal completions (step costs inside Nav/DM/DA) start pessimistic: with 0 the greedy
@@ -376,16 +376,25 @@ def internal_init(timing: FourAGVTiming = TABLE_6_1) -> float:
     is -16.9, and an init of -50 kept the AGVs circling the loops with their loads (the
     untried turn into a branch stayed below the tried ``Forward``): there the init is -16.1.
     """
-    per_move = GAMMA**timing.action_mean
+    per_move = gamma**timing.action_mean
     return -sum(per_move**k for k in range(LONGEST_ROUTE))
 
 
 def maxq_learner(
-    graph: TaskGraph, sets: int, timing: FourAGVTiming = TABLE_6_1, alpha: float = 0.2
+    graph: TaskGraph,
+    sets: int,
+    timing: FourAGVTiming = TABLE_6_1,
+    alpha: float | Schedule = 0.2,
+    gamma: float = GAMMA,
 ) -> MaxQLearner:
-    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``."""
-    init = internal_init(timing)
-    return MaxQLearner(graph, sets, alpha=alpha, gamma=GAMMA, init_internal=init)
+    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``.
+
+    The step-cost pessimism reaches only the subtasks with step costs (``Nav_t``, ``DM_i``,
+    ``DA_i``); the root starts at 0 (``MaxQLearner``'s ``init_internal``; docs/defaults.md,
+    "The discount trap").
+    """
+    init = internal_init(timing, gamma)
+    return MaxQLearner(graph, sets, alpha=alpha, gamma=gamma, init_internal=init)
 
 
 def _maxq(timing: FourAGVTiming = TABLE_6_1) -> Make:

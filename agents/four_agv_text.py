@@ -90,13 +90,19 @@ ROOT_STATES = STATION_CODES**N_STATIONS
 COOPERATION = Cooperation((("Root",),))
 
 
-def root_abstract(obs: TensorDict, capacity: int = CAPACITY) -> torch.Tensor:
-    """Root state in ``[0, 1296)``: per station, part ready x level of ``Pi`` (3 levels)."""
+def root_abstract(obs: TensorDict, capacity: int = CAPACITY, levels: int = 3) -> torch.Tensor:
+    """Root state in ``[0, (2 levels)^4)``: per station, part ready x level of ``Pi``.
+
+    ``levels`` 3 (the registered root, 1,296 states): ``Pi`` empty / partly full / full; 2 (a
+    smaller root, 256 states): empty / not.
+    """
     ready = (station_fields(obs, "warehouse") > 0) & (station_fields(obs, "drop_off") < capacity)
     pick = station_fields(obs, "pick_up")
-    level = (pick > 0).long() + (pick >= capacity).long()  # 0 empty, 1 partly, 2 full
-    code = ready.long() * 3 + level
-    weights = STATION_CODES ** torch.arange(N_STATIONS, device=code.device)
+    level = (pick > 0).long()  # 0 empty, 1 not (levels 2) or partly full, 2 full (levels 3)
+    if levels == 3:
+        level = level + (pick >= capacity).long()
+    code = ready.long() * levels + level
+    weights = (2 * levels) ** torch.arange(N_STATIONS, device=code.device)
     return (code * weights).sum(-1)
 
 
@@ -186,21 +192,23 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
     )
 
 
-def text_hierarchy(capacity: int = CAPACITY) -> TaskGraph:
+def text_hierarchy(capacity: int = CAPACITY, root_levels: int = 3) -> TaskGraph:
     """Figure 6.3 with committed, waiting jobs and the buffer-level root (module docstring).
 
     The root's children are ``U_1 = {DM_1..4, DA_1..4}`` (the text's list; no ``Idle``: an AGV
     waits inside its job). Some job is always initiable: ``DM_i`` whenever the AGV is empty,
-    the job it carries for otherwise.
+    the job it carries for otherwise. ``root_levels`` 2: the smaller root (``root_abstract``).
     """
+    if root_levels not in (2, 3):
+        raise ValueError(f"root_levels must be 2 or 3, got {root_levels}")
     dm = [_deliver_material(i, capacity) for i in range(N_STATIONS)]
     da = [_deliver_assembly(i, capacity) for i in range(N_STATIONS)]
     navs = [Navigate(t) for t in NAV_TARGETS]
     root = Subtask(
         "Root",
         [x.name for x in dm + da],
-        n_states=ROOT_STATES,
-        abstract=lambda o: root_abstract(o, capacity),
+        n_states=(2 * root_levels) ** N_STATIONS,
+        abstract=lambda o: root_abstract(o, capacity, root_levels),
     )
     return TaskGraph("Root", [root, *dm, *da, *navs, *primitives()], n_actions=N_ACTIONS)
 
@@ -311,9 +319,14 @@ def make_env(
     n_agents: int = 4,
     capacity: int = CAPACITY,
     timing: FourAGVTiming = TABLE_6_1,
+    own_rewards: bool = False,
 ) -> FourAGVEnv:
-    """The four-AGV task with the team reward: every agent receives the team's assemblies."""
-    return FourAGVEnv(seeds, envs_per_learner, n_agents, capacity, timing, own_rewards=False)
+    """The four-AGV task with the team reward: every agent receives the team's assemblies.
+
+    ``own_rewards``: each agent is paid for its own deliveries instead (their sum is the
+    team's; issue 33's untried list, measured in docs/reproduction.md).
+    """
+    return FourAGVEnv(seeds, envs_per_learner, n_agents, capacity, timing, own_rewards=own_rewards)
 
 
 def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:

@@ -28,6 +28,10 @@ from hrl_torch.learners.q_lambda import QLambdaLearner
 from hrl_torch.modules.exploration import TriggeredEpsilon
 from hrl_torch.modules.tiles import TileCoder
 
+#: the rudder's range, the env's ``action_bounds`` (+-15 deg/s), given explicitly: a PG node's
+#: range is never a silent default (``hrl_torch.learners.action_range``)
+RUDDER = {"action_low": -MAX_TURN, "action_high": MAX_TURN}
+
 
 # ---------------------------------------------------------------------- progress (Figures 5.7-5.11)
 class ShipMonitor(nn.Module):
@@ -195,6 +199,7 @@ def make_hybrid(
             beta=params.pg_beta,
             baseline=params.pg_baseline,
             trace_len=LOW_LEVEL_GUARD,
+            **RUDDER,
         ),
         direction_groups(),
         low_level_tile_coder(),
@@ -226,7 +231,7 @@ class ShipActorCritic(_Monitored, ActorCriticLearner):
 def make_flat_pg(graph: TaskGraph, n_learners: int, params: ShipHyperparams = PARAMS) -> FlatPGRL:
     """Flat PGRL: one Gaussian over 9 tilings of 20 x 20 x 36 x 5 of the global state."""
     config = PGConfig(
-        alpha=params.flat_alpha, sigma=params.sigma, online=params.online, trace_len=1000
+        alpha=params.flat_alpha, sigma=params.sigma, online=params.online, trace_len=1000, **RUDDER
     )
     return flat_pg_learner(graph, n_learners, config)
 
@@ -253,7 +258,7 @@ def make_actor_critic(
     graph: TaskGraph, n_learners: int, params: ShipHyperparams = PARAMS
 ) -> ShipActorCritic:
     """Actor-critic (Konda): flat PGRL's actor, a 5-D tile-coded Q(s, a) critic."""
-    actor = PGConfig(alpha=params.actor_alpha, sigma=params.sigma)
+    actor = PGConfig(alpha=params.actor_alpha, sigma=params.sigma, **RUDDER)
     return actor_critic_learner(graph, n_learners, actor, params.critic_alpha)
 
 

@@ -46,13 +46,14 @@ from agents.ship import (
 )
 from agents.ship import bearing as goal_bearing
 from agents.ship_learners import (
+    RUDDER,
     FlatPGRL,
     ShipActorCritic,
     ShipMonitor,
     actor_critic_learner,
     flat_pg_learner,
 )
-from envs.ship import ShipSteeringEnv, wrap_degrees
+from envs.ship import MAX_TURN, ShipSteeringEnv, wrap_degrees
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners.hybrid import HybridLearner
@@ -195,7 +196,9 @@ def subtask_heads(params: TextParams = TEXT) -> dict[str, TileGaussianPolicyHead
     """
     shared = low_level_tile_coder() if params.features == "state" else None
     return {
-        name: TileGaussianPolicyHead(name, shared or subtask_coder(k, params), params.sigma)
+        name: TileGaussianPolicyHead(
+            name, shared or subtask_coder(k, params), params.sigma, -MAX_TURN, MAX_TURN
+        )
         for k, name in enumerate(SUBTASK_NAMES)
     }
 
@@ -210,6 +213,7 @@ def low_level_config(params: TextParams = TEXT) -> PGConfig:
         trace_len=LOW_LEVEL_GUARD,
         init=params.pg_init,
         baseline=params.pg_baseline,
+        **RUDDER,
     )
 
 
@@ -468,6 +472,7 @@ def make_flat_pg_text(graph: TaskGraph, n_learners: int, params: TextParams = TE
         online=True,
         beta=1.0,
         trace_len=1000,
+        **RUDDER,
     )
     return flat_pg_learner(graph, n_learners, config)
 
@@ -476,7 +481,9 @@ def make_actor_critic_text(
     graph: TaskGraph, n_learners: int, params: TextParams = TEXT
 ) -> ShipActorCritic:
     """Today's actor-critic with the decaying actor step size of the other -text variants."""
-    actor = PGConfig(alpha=Harmonic(params.flat_alpha, params.flat_tau), sigma=params.sigma)
+    actor = PGConfig(
+        alpha=Harmonic(params.flat_alpha, params.flat_tau), sigma=params.sigma, **RUDDER
+    )
     return actor_critic_learner(graph, n_learners, actor, params.critic_alpha)
 
 

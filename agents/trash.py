@@ -75,8 +75,7 @@ from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.learners.neural_maxq import NeuralMaxQLearner
-from hrl_torch.modules.exploration import linear_epsilon
-from hrl_torch.modules.tables import RowSteps
+from hrl_torch.modules.exploration import VisitCount, linear_epsilon
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec, algo_family
 from hrl_torch.training.config import TrainConfig
@@ -234,43 +233,31 @@ VISIT_STEPS = 600_000
 
 
 def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearner:
-    """Give every table entry its own step size ``alpha_t = clip(1 / n, low, high)``.
+    """Give every table entry of a built ``learner`` its own step size ``clip(1 / n, low, high)``.
 
     ``n`` counts the entry's updates so far, this one included (Section 6.3: ``alpha_t(i)``
     "should be gradually decreased to zero"; the floor ``low`` keeps tracking the other
-    robot's changing policy). The counts are the learner's buffer ``visit_counts`` (they move
-    and are saved with it).
+    robot's changing policy): ``hrl_torch.modules.exploration.VisitCount``, which a tabular
+    learner also takes as its ``alpha``. The counts are its tables' buffer ``visits``.
     """
-    if not 0.0 < low <= high <= 1.0:
-        raise ValueError(f"visit step size needs 0 < low <= high <= 1, got {low}, {high}")
-    tables = learner.tables
-    learner.register_buffer("visit_counts", torch.zeros_like(tables.store))
-    plain = tables.update
-
-    def update(flat_index, target, alpha, mask, distinct=False):
-        counts = learner.visit_counts
-        index = flat_index.masked_fill(~mask, tables.sentinel)
-        ones = torch.ones(index.numel(), dtype=counts.dtype, device=counts.device)
-        counts.index_put_((index.reshape(-1),), ones, accumulate=True)
-        step = (1.0 / torch.take(counts, index).clamp_min(1.0)).clamp(low, high)
-        return plain(flat_index, target, RowSteps(step), mask, distinct)
-
-    tables.update = update
+    steps = VisitCount(low, high)  # (checks 0 <= low <= high <= 1)
+    learner.tables.count_visits()
+    learner.alpha = steps
     return learner
 
 
-def maxq_visits(
-    graph: TaskGraph, sets: int, high: float = VISIT_STEP[0], low: float = VISIT_STEP[1]
-) -> MaxQLearner:
-    """The selfish robots' MAXQ-Q with the per-entry step size ``clip(1 / n, low, high)``."""
-    return visit_step_size(_MAXQ.build(graph, sets), high, low)
+#: the ``-visits`` algorithms' step size
+_VISITS = VisitCount(VISIT_STEP[1], VISIT_STEP[0])
 
 
-def maxq_cooperative_visits(
-    graph: TaskGraph, sets: int, high: float = VISIT_STEP[0], low: float = VISIT_STEP[1]
-) -> MaxQLearner:
-    """The cooperative root's MAXQ-Q with the per-entry step size ``clip(1 / n, low, high)``."""
-    return visit_step_size(_MAXQ_COOPERATIVE.build(graph, sets), high, low)
+def maxq_visits(graph: TaskGraph, sets: int) -> MaxQLearner:
+    """The selfish robots' MAXQ-Q with the per-entry step size ``clip(1 / n, 0.01, 0.2)``."""
+    return _MAXQ.with_argument("alpha", _VISITS).build(graph, sets)
+
+
+def maxq_cooperative_visits(graph: TaskGraph, sets: int) -> MaxQLearner:
+    """The cooperative root's MAXQ-Q with the per-entry step size ``clip(1 / n, 0.01, 0.2)``."""
+    return _MAXQ_COOPERATIVE.with_argument("alpha", _VISITS).build(graph, sets)
 
 
 def _evaluator(config: TrainConfig) -> ThroughputEvaluator:

@@ -32,9 +32,9 @@ def test_visit_step_size_averages_the_targets():
     learner = visit_step_size(MaxQLearner(trash_hierarchy(), 1, 0.2, init=-10.0), 1.0, 0.01)
     index, mask = torch.tensor([[0]]), torch.tensor([[True]])
     for k in range(1, 6):
-        learner.tables.update(index, torch.tensor([[float(k)]]), 0.2, mask, True)
+        learner.tables.update(index, torch.tensor([[float(k)]]), learner.alpha(k), mask, True)
     assert learner.tables.store[0].item() == pytest.approx(3.0)
-    assert learner.visit_counts[0].item() == 5.0
+    assert learner.tables.visits[0].item() == 5.0
     with pytest.raises(ValueError, match="low <= high"):
         visit_step_size(MaxQLearner(trash_hierarchy(), 1, 0.2), 0.01, 0.2)
 

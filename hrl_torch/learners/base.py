@@ -29,6 +29,7 @@ from hrl_torch.modules.eval_plan import EvalPlan
 from hrl_torch.modules.exploration import (
     Exploration,
     Schedule,
+    VisitCount,
     as_schedule,
     has_per_learner_values,
     on_device,
@@ -193,7 +194,9 @@ class TabularLearner(Learner):
     Args:
         graph: the task graph.
         n_learners: population size ``P``.
-        alpha: step size (number or schedule over env steps).
+        alpha: step size (number or schedule over env steps), or ``VisitCount(low, high)``:
+            each table entry its own ``clip(1 / n, low, high)`` over its ``n`` updates (the
+            banks then count visits; docs/defaults.md, "Step sizes that settle").
         gamma: discount factor (1 for undiscounted episodic tasks).
         per_instance: tables per Task-Stack context instead of per subtask.
     """
@@ -215,6 +218,7 @@ class TabularLearner(Learner):
         check_size(self, "alpha", alpha, n_learners)  # a per-learner alpha: one per learner
         check_fraction(self, "gamma", gamma)
         self.alpha = as_schedule(alpha)
+        self.counts_visits = isinstance(alpha, VisitCount)  # (the banks count their entries')
         self.gamma = float(gamma)
         self.layout = TableLayout(graph, per_instance)
         self.plan = EvalPlan(graph, self.layout)
@@ -225,13 +229,16 @@ class TabularLearner(Learner):
         lay = self.layout
         n_states = torch.where(lay.table_is_primitive, 0, lay.table_n_states)
         n_cols = lay.table_n_children.clamp_min(1)
-        return TableBank(self.n_learners, n_states, n_cols, init, pad=lay.max_children)
+        return TableBank(
+            self.n_learners, n_states, n_cols, init, pad=lay.max_children, visits=self.counts_visits
+        )
 
     def primitive_bank(self, init: float = 0.0) -> TableBank:
         """A ``[n_states, 1]`` value table for every primitive table node."""
         lay = self.layout
         n_states = torch.where(lay.table_is_primitive, lay.table_n_states, 0)
-        return TableBank(self.n_learners, n_states, torch.ones_like(n_states), init)
+        ones = torch.ones_like(n_states)
+        return TableBank(self.n_learners, n_states, ones, init, visits=self.counts_visits)
 
     # ------------------------------------------------------------------ evaluation
     def composite_rows(self, ctx: StepContext, *banks: TableBank, penalty: bool = False):

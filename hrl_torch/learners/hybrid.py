@@ -72,6 +72,10 @@ class HybridLearner(Learner):
         self.monitor = monitor
         self.gamma = value.gamma
 
+    def log_scalars(self, step: int) -> dict[str, list[float]]:
+        """The PG nodes' scalars at a log (``HPGRLLearner.log_scalars``)."""
+        return self.pg.log_scalars(step)
+
     def evaluate(self, ctx: StepContext) -> None:
         """Both learners' per-step values."""
         self.value.evaluate(ctx)

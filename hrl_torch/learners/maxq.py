@@ -45,8 +45,12 @@ class MaxQLearner(TabularLearner):
             Refused for nodes whose internal rewards read their invocation's memory.
         per_instance: tables per Task-Stack context rather than per subtask.
         init: initial completion values (see docs/design.md on initialisation and loops).
-        init_internal: initial internal completions ``C~`` (default: ``init``), e.g.
-            pessimistic ones for subtasks whose internal rewards are step costs.
+        init_internal: initial internal completions ``C~`` of the subtasks with internal
+            rewards of their own (``graph.internal_nodes``; default: ``init``), e.g.
+            pessimistic ones for subtasks whose internal rewards are step costs. Every other
+            node's ``C~`` starts at ``init``: a node's initial values come from its own rewards,
+            so a subtask's step-cost pessimism never reaches a parent without step costs
+            (docs/defaults.md, "The discount trap").
         init_nodes: initial completions (``C`` and ``C~``) of the named subtasks instead,
             e.g. optimistic ones at a cooperative root so that every joint choice is tried.
     """
@@ -83,6 +87,7 @@ class MaxQLearner(TabularLearner):
         if self.internal:
             self.C_int = self.completion_bank(c_int_init)
             self.share_store(C=self.C, V=self.V, C_int=self.C_int)
+            self._start_like_external(graph, init)
         else:
             self.C_int = self.C
             self.share_store(C=self.C, V=self.V)
@@ -93,6 +98,21 @@ class MaxQLearner(TabularLearner):
                 raise GraphError(f"init_nodes: {name!r} is not a subtask of the graph")
             for key in ("C", "C_int") if self.internal else ("C",):
                 self.heads[name][key].fill_(float(value))
+
+    def _start_like_external(self, graph: TaskGraph, init) -> None:
+        """``C~`` of the tables whose node has no internal rewards starts at ``init`` (``C``'s).
+
+        Their internal target is the external one (no pseudo or shaping reward of theirs), so
+        a start of ``init_internal`` there would be another node's step cost (the four-AGV
+        root's -49.96 under ``gamma^tau``: docs/defaults.md, "The discount trap").
+        """
+        own = set(graph.internal_nodes)
+        lay = self.layout
+        start = torch.as_tensor(init, dtype=self.C_int.store.dtype).reshape(-1, 1, 1)
+        for t, node in enumerate(lay.table_node.tolist()):
+            if node not in own and not graph.nodes[node].is_primitive:
+                block = self.C_int.block(t)
+                block.copy_(start.expand_as(block))
 
     # ------------------------------------------------------------------ values
     def evaluate(self, ctx: StepContext) -> None:

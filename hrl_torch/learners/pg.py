@@ -51,7 +51,8 @@ from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
-from hrl_torch.learners.pg_traces import apply_traces, ring_entries
+from hrl_torch.learners.pg_stats import PGStats
+from hrl_torch.learners.pg_traces import apply_traces, check_overflow, overflow_error, ring_entries
 from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
 from hrl_torch.modules.exploration import Schedule, as_schedule
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
@@ -83,8 +84,10 @@ class PGConfig:
     Attributes:
         alpha: step size ``alpha_k`` (number or schedule over env steps per learner).
         sigma: standard deviation of the Gaussian heads (in the pre-squash space).
-        action_low: lower end of a continuous action (after the sigmoid squash).
-        action_high: upper end.
+        action_low: lower end of a continuous action (after the sigmoid squash); ``None``
+            (default): the env's ``action_bounds``, which the trainer reads at its start (an
+            error when neither gives one: ``action_range.use_action_bounds``).
+        action_high: upper end (``None`` with ``action_low``).
         online: Algorithm 3 line 16 every step (True) or the same sum once per renewal cycle.
         beta: eligibility discount, ``z_{k+1} = beta z_k + grad mu / mu``; 1 is Equation 5.3,
             ``beta < 1`` is Baxter & Bartlett's biased, lower-variance estimate (which lines
@@ -103,8 +106,8 @@ class PGConfig:
 
     alpha: float | Schedule = 0.01
     sigma: float = 1.0
-    action_low: float = -15.0
-    action_high: float = 15.0
+    action_low: float | None = None
+    action_high: float | None = None
     online: bool = True
     beta: float = 1.0
     trace_len: int = 256
@@ -134,6 +137,7 @@ class HPGRLLearner(Learner):
 
     deferred_overflow: DeferredCheck | None = None  #: set by ``deferred_checks``
     ring_entries = ring_entries  #: ``Learner.ring_entries`` (``pg_traces``)
+    overflow_error = overflow_error  #: (``pg_traces``)
 
     def __init__(
         self,
@@ -166,6 +170,11 @@ class HPGRLLearner(Learner):
         )
         self.register_buffer("reward_to_go_mean", torch.zeros(n_learners, len(self.group_names)))
         self._rows: dict[str, torch.Tensor] = {}
+        self.pg_stats = PGStats(n_learners, self.theta, len(self.group_names))
+
+    def log_scalars(self, step: int) -> dict[str, list[float]]:
+        """Per PG group and learner: returns, policy, update norms (``pg_stats``), at a log."""
+        return self.pg_stats.scalars(self, step)
 
     # ------------------------------------------------------------------ heads
     def default_head(self, group: str, node: int) -> PolicyHead:
@@ -422,7 +431,7 @@ class HPGRLLearner(Learner):
         valid = level["valid"].index_select(1, depths) & (torch.take(self.node_group, node) >= 0)
         r = self.rewards(batch, node, depths)
         count, k = rows["count"], cfg.trace_len
-        self._check_overflow(valid & (count >= k), node)
+        check_overflow(self, valid & (count >= k), node)
         # line 14: z_{k+1} = z_k + grad mu / mu (the ended child's choice joins the ring):
         # one slot per (row, depth), the last (k) for the pairs with nothing to add
         slot = self._pair_base(b, valid.device) + torch.where(valid, count, k).clamp_max(k)
@@ -443,6 +452,7 @@ class HPGRLLearner(Learner):
         self.apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
         if cfg.frozen:  # (cycles ended per learner and group)
             self.cycles.view(-1).index_add_(0, cell.view(-1), ended.view(-1).float())
+        self.pg_stats.record(rows["reward"], count, ended, cell)  # (returns per invocation)
         rows["count"] = count.masked_fill(ended, 0)
 
     def apply_traces(self, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
@@ -453,25 +463,6 @@ class HPGRLLearner(Learner):
         """The ring check, latched on the device instead of read (``training.deferred``)."""
         self.deferred_overflow = DeferredCheck(self.overflow_error)
         return [self.deferred_overflow]
-
-    def _check_overflow(self, over: torch.Tensor, node: torch.Tensor) -> None:
-        """Raise (or, deferred, latch) a (row, depth) whose ring is full ``over [B, S]``."""
-        deferred = self.deferred_overflow
-        if deferred is not None and deferred.takes(over):  # (no read: ``deferred_checks``)
-            deferred.record(over.any(1), over=over, node=node)
-        elif bool(over.any()):
-            row = int(over.any(1).nonzero()[0])
-            raise self.overflow_error(row, {"over": over, "node": node})
-
-    def overflow_error(self, row: int, saved: dict) -> RuntimeError:
-        """The error of a ring that overflowed in batch row ``row``."""
-        depth = int(saved["over"][row].nonzero()[0])
-        name = self.graph.names[int(saved["node"][row, depth])]
-        return RuntimeError(
-            f"PG node {name!r} selected more than trace_len={self.config.trace_len} children in "
-            "one invocation; raise PGConfig.trace_len or bound the subtask with the executor's "
-            "guard"
-        )
 
 
 class PGPolicy:
@@ -574,7 +565,7 @@ class ActorCriticLearner(HPGRLLearner):
         # actor: baseline = the critic at the actor's mean action
         _, mean = self.actor.mean(self.theta, learner * self.total, feats)
         actor = self.actor
-        q_mean = critic.value(self._q_tiles(learner, feats, squash(mean, actor.low, actor.high)))
+        q_mean = critic.value(self._q_tiles(learner, feats, squash(mean, *actor.range())))
         advantage = torch.where(valid, q - q_mean, 0.0)
         slot0 = (
             torch.where(valid[:, None], level["score_index"][:, 0], self.sentinel),

@@ -136,3 +136,23 @@ def baseline(learner, cell: torch.Tensor, togo: torch.Tensor, filled: torch.Tens
     mean = (sums / counts.clamp_min(1)).float()
     b.add_(torch.where(seen, learner.config.baseline * (mean - b), 0.0))
     return used
+
+
+def check_overflow(learner, over: torch.Tensor, node: torch.Tensor) -> None:
+    """Raise (or, deferred, latch) a (row, depth) whose ring is full ``over [B, S]``."""
+    deferred = learner.deferred_overflow
+    if deferred is not None and deferred.takes(over):  # (no read: ``deferred_checks``)
+        deferred.record(over.any(1), over=over, node=node)
+    elif bool(over.any()):
+        row = int(over.any(1).nonzero()[0])
+        raise overflow_error(learner, row, {"over": over, "node": node})
+
+
+def overflow_error(learner, row: int, saved: dict) -> RuntimeError:
+    """The error of a ring that overflowed in batch row ``row``."""
+    depth = int(saved["over"][row].nonzero()[0])
+    name = learner.graph.names[int(saved["node"][row, depth])]
+    return RuntimeError(
+        f"PG node {name!r} selected more than trace_len={learner.config.trace_len} children in "
+        "one invocation; raise PGConfig.trace_len or bound the subtask with the executor's guard"
+    )

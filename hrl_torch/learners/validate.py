@@ -7,7 +7,7 @@ import math
 import torch
 
 from hrl_torch.common.per_learner import refuse
-from hrl_torch.modules.exploration import Constant, Exponential, Linear, Schedule
+from hrl_torch.modules.exploration import Constant, Exponential, Linear, Schedule, VisitCount
 
 
 def schedule_values(value: float | Schedule) -> list[float]:
@@ -18,6 +18,8 @@ def schedule_values(value: float | Schedule) -> list[float]:
     """
     if isinstance(value, Constant):
         return _numbers(value.value)
+    if isinstance(value, VisitCount):  # (checked when made; 1/n itself stays in (0, 1])
+        return [value.high]
     if isinstance(value, Linear):
         return _numbers(value.start) + _numbers(value.end)
     if isinstance(value, Exponential):

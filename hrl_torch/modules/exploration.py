@@ -93,7 +93,58 @@ class Exponential(_PerLearnerFields):
         return max(self.minimum, value)
 
 
-Schedule = Constant | Linear | Exponential
+@dataclass(frozen=True)
+class VisitCount:
+    """A per-entry step size from the entry's visits: ``alpha_n = clip(1 / n, low, high)``.
+
+    ``n`` counts the updates of that one table entry, this one included: the clipped harmonic
+    step size, Section 6.3's ``alpha_t(i)`` that "should be gradually decreased to zero" (the
+    stochastic-approximation conditions hold for ``1 / n``; ``low > 0`` keeps tracking a
+    changing target, e.g. other agents' policies, and ``high < 1`` keeps the initial value from
+    being overwritten by the first target). A tabular learner given ``alpha=VisitCount(...)``
+    keeps a count per entry (its tables' ``visits`` buffer, saved with them). Calling it gives
+    itself: the tables apply it (``hrl_torch.modules.tables``).
+
+    Args:
+        low: the floor ``alpha_min`` (0: plain ``1 / n``).
+        high: the ceiling (1: the first update replaces the initial value).
+    """
+
+    low: float = 0.0
+    high: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.low <= self.high <= 1.0 and self.high > 0.0):
+            raise ValueError(
+                f"VisitCount needs 0 <= low <= high <= 1 and high > 0, got low={self.low}, "
+                f"high={self.high}"
+            )
+
+    def __call__(self, step: int) -> VisitCount:
+        """The same at every step (the visits, not the clock, set the size)."""
+        return self
+
+    def keep(self, before: torch.Tensor, hits: torch.Tensor) -> torch.Tensor:
+        """``prod_{n = k+1}^{k+m} (1 - alpha_n)``: what ``m`` updates after ``k`` keep of ``W``.
+
+        ``before`` (``k``) and ``hits`` (``m``): float tensors of one shape. The product in
+        closed form: ``(1-high)^(visits at the ceiling) * (harmonic part, telescoping to
+        first / last) * (1-low)^(visits at the floor)``, so ``m`` same-step updates of one entry
+        move it exactly as ``m`` successive ones toward their mean would.
+        """
+        ceiling = math.floor(1.0 / self.high + 1e-9)  # n <= ceiling: 1/n >= high
+        floor = math.floor(1.0 / self.low + 1e-9) if self.low > 0 else math.inf  # n > floor: low
+        after = before + hits
+        at_high = (after.clamp_max(ceiling) - before).clamp_min(0.0)
+        start = before.clamp_min(ceiling)
+        end = after.clamp_max(floor) if math.isfinite(floor) else after
+        harmonic = torch.where(end > start, start / end.clamp_min(1.0), torch.ones_like(end))
+        at_low = (after - before.clamp_min(floor)).clamp_min(0.0) if self.low > 0 else 0.0
+        keep = torch.pow(1.0 - self.high, at_high) * harmonic
+        return keep * (1.0 - self.low) ** at_low if self.low > 0 else keep
+
+
+Schedule = Constant | Linear | Exponential | VisitCount
 
 
 def as_schedule(value: float | torch.Tensor | Schedule) -> Schedule:

@@ -166,8 +166,9 @@ class TileGaussianPolicyHead(PolicyHead):
         name: the head's name (its subtask or group).
         coder: the tile coder of the node's features.
         sigma: standard deviation of ``u`` (1 in the text's density).
-        action_low: lower end of the action range (-15 deg/s for the ship).
-        action_high: upper end of the action range.
+        action_low: lower end of the action range; ``None``: the env's ``action_bounds``, set
+            by the trainer at its start (``set_range``; acting without one is an error).
+        action_high: upper end of the action range (``None`` with ``action_low``).
     """
 
     continuous = True
@@ -177,15 +178,34 @@ class TileGaussianPolicyHead(PolicyHead):
         name: str,
         coder: TileCoder,
         sigma: float = 1.0,
-        action_low: float = -15.0,
-        action_high: float = 15.0,
+        action_low: float | None = None,
+        action_high: float | None = None,
     ) -> None:
         if sigma <= 0:
             raise ValueError(f"sigma must be positive, got {sigma}")
         super().__init__(name, 1, coder.n_features)
         self.coder = coder
-        self.sigma, self.low, self.high = float(sigma), float(action_low), float(action_high)
+        self.sigma, self.low, self.high = float(sigma), None, None
+        if (action_low is None) != (action_high is None):
+            raise ValueError(f"Gaussian head {name!r}: give both ends of the action range or none")
+        if action_low is not None:
+            self.set_range(action_low, action_high)
         self.width = coder.n_tilings
+
+    def set_range(self, low: float, high: float) -> None:
+        """The action range ``[low, high]`` that ``squash`` maps into (``low < high``)."""
+        if not float(low) < float(high):
+            raise ValueError(f"Gaussian head {self.name!r}: action range needs low < high")
+        self.low, self.high = float(low), float(high)
+
+    def range(self) -> tuple[float, float]:
+        """``(low, high)``; a clear error while neither the config nor the env gave one."""
+        if self.low is None:
+            raise ValueError(
+                f"Gaussian head {self.name!r} has no action range: give PGConfig(action_low=..., "
+                "action_high=...) or train on an env with action_bounds"
+            )
+        return self.low, self.high
 
     def batch_key(self) -> object:
         """Gaussian heads over one coder with one sigma and range share one call."""
@@ -217,4 +237,4 @@ class TileGaussianPolicyHead(PolicyHead):
         score = gaussian_tile_score(pre, mean, tiles.shape[-1], self.sigma)
         flag = torch.full_like(inp.base, greedy, dtype=torch.bool)
         child = torch.zeros_like(inp.base)
-        return PolicyChoice(child, flag, squash(pre, self.low, self.high), tiles, score)
+        return PolicyChoice(child, flag, squash(pre, *self.range()), tiles, score)

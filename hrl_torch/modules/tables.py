@@ -20,6 +20,7 @@ from hrl_torch.common.devices import MovesTensorAttrs
 from hrl_torch.common.ops import group_of_rows, lookup, take_flat
 from hrl_torch.common.per_learner import at_entries, check_size, is_per_learner
 from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.modules.exploration import VisitCount
 
 
 @dataclass(frozen=True)
@@ -89,13 +90,22 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
     #: above this many entries, same-step updates are grouped with ``unique`` (no scratch)
     SCRATCH_LIMIT = 1 << 22
 
-    def _init_store(self, n_learners: int, stride: int, fill: torch.Tensor, pad: int = 0) -> None:
-        """A store of ``fill``: one learner's block ``[stride]`` or each one's ``[P, stride]``."""
+    def _init_store(
+        self, n_learners: int, stride: int, fill: torch.Tensor, pad: int = 0, visits: bool = False
+    ) -> None:
+        """A store of ``fill``: one learner's block ``[stride]`` or each one's ``[P, stride]``.
+
+        ``visits``: also count each entry's updates (``visits``, shaped like ``store``), for
+        the per-entry step size ``VisitCount``.
+        """
         self.n_learners, self.stride, self.pad = n_learners, stride, pad
         self.sentinel = n_learners * stride
         blocks = fill.expand(n_learners, stride).reshape(-1)
         store = torch.cat([blocks, torch.zeros(1 + pad)])
         self.register_buffer("store", store)
+        self.counts_visits = visits
+        if visits:
+            self.register_buffer("visits", torch.zeros_like(store))
         self._scratch = torch.zeros(2, 0)
 
     def update(
@@ -119,9 +129,15 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         ``distinct``: the caller knows that no two unmasked rows hit one entry (each row of
         its batch belongs to another learner, and one row's entries differ), so ``n <= 1``
         and the rule is the plain ``W <- W + a (target - W)``, the same numbers in fewer ops.
+
+        ``alpha`` a ``VisitCount``: each entry's own ``alpha_n = clip(1/n, low, high)`` from
+        its count of updates (a store made with ``visits``); ``n`` same-step hits keep
+        ``prod (1 - alpha_n)`` of ``W`` over their ``n`` counts (``VisitCount.keep``).
         """
         flat = self.store
         index = flat_index.masked_fill(~mask, self.sentinel)  # masked rows hit the sentinel
+        if isinstance(alpha, VisitCount):
+            return self._update_by_visits(index, target, alpha, mask, distinct)
         if isinstance(alpha, RowSteps):
             rho = 1.0 - alpha.alpha
         else:
@@ -143,6 +159,46 @@ class _FlatStore(MovesTensorAttrs, nn.Module):
         mean = total / n.clamp_min(1.0)
         old = flat.index_select(0, index)
         flat.put_(index, mean + keep * (old - mean))
+        return old.view(shape)
+
+    def count_visits(self) -> None:
+        """Start counting each entry's updates (``visits``, zero now) for ``VisitCount``."""
+        if not self.counts_visits:
+            self.register_buffer("visits", torch.zeros_like(self.store))
+            self.counts_visits = True
+        for bank in getattr(self, "banks", {}).values():
+            bank.counts_visits = True
+
+    def _update_by_visits(self, index, target, steps: VisitCount, mask, distinct: bool):
+        """``update`` with the per-entry step size ``steps`` (masked rows' ``index``: sentinel).
+
+        The counts move with the entries: an entry hit by ``m`` rows counts ``m`` more.
+        """
+        if not self.counts_visits:
+            raise ValueError(
+                f"{type(self).__name__}: a VisitCount step size needs tables that count visits "
+                "(a tabular learner's banks made with alpha=VisitCount(...)); these do not"
+            )
+        flat, visits = self.store, self.visits
+        if distinct:  # (each unmasked row its own entry: m = 1)
+            old, before = take_flat(flat, index), take_flat(visits, index)
+            hits = mask.to(flat.dtype)
+            mean = torch.nan_to_num(target)
+            new = mean + steps.keep(before, hits) * (old - mean)
+            flat.put_(index, torch.where(mask, new, old))
+            visits.put_(index, before + hits)
+            return old
+        shape = index.shape
+        index, target, mask = index.reshape(-1), target.reshape(-1), mask.reshape(-1)
+        weight = mask.to(flat.dtype)
+        weighted = torch.stack([weight, torch.nan_to_num(target)]) * weight
+        n, total = self._count_and_sum(index, weighted)
+        before = visits.index_select(0, index)
+        keep = steps.keep(before, n)  # n = 0 (masked rows, the sentinel) keeps W
+        mean = total / n.clamp_min(1.0)
+        old = flat.index_select(0, index)
+        flat.put_(index, mean + keep * (old - mean))
+        visits.put_(index, before + n)
         return old.view(shape)
 
     def _count_and_sum(self, index, weighted) -> tuple[torch.Tensor, torch.Tensor]:
@@ -192,6 +248,7 @@ class TableBank(_FlatStore):
         n_cols: columns per table node ``[T]`` (children for completion tables, 1 for values).
         init: initial value of every entry (a number, or one per learner: a tensor ``[P]``).
         pad: zeros after the sentinel (``_FlatStore``).
+        visits: count each entry's updates (for the step size ``VisitCount``).
     """
 
     def __init__(
@@ -201,6 +258,7 @@ class TableBank(_FlatStore):
         n_cols: torch.Tensor,
         init: float | torch.Tensor = 0.0,
         pad: int = 0,
+        visits: bool = False,
     ) -> None:
         super().__init__()
         sizes = n_states.long() * n_cols.long()
@@ -214,11 +272,13 @@ class TableBank(_FlatStore):
         self._set: TableSet | None = None
         self.base = 0
         fill = self.init.float()[:, None] if is_per_learner(self.init) else self.init
-        self._init_store(n_learners, self.total, torch.zeros(self.total) + fill, pad)
+        self._init_store(n_learners, self.total, torch.zeros(self.total) + fill, pad, visits)
 
     def _join(self, tables: TableSet, base: int) -> None:
         """Keep this bank's entries in ``tables``' store, from ``base`` in each learner block."""
         del self._buffers["store"]
+        self._buffers.pop("visits", None)  # (counted in the set's, if it counts)
+        self.counts_visits = tables.counts_visits
         object.__setattr__(self, "_set", tables)  # the set owns the bank, not the reverse
         self.base = base
         self.offset += base
@@ -226,8 +286,8 @@ class TableBank(_FlatStore):
         self.stride, self.sentinel = tables.stride, tables.sentinel
 
     def __getattr__(self, name: str):
-        if name == "store" and self.__dict__.get("_set") is not None:
-            return self._set.store
+        if name in ("store", "visits") and self.__dict__.get("_set") is not None:
+            return getattr(self._set, name)
         return super().__getattr__(name)
 
     @property
@@ -304,7 +364,8 @@ class TableSet(_FlatStore):
         first = next(iter(banks.values()))
         fills = [bank.data for bank in banks.values()]  # every learner's block
         stride, pad = sum(b.total for b in banks.values()), max(b.pad for b in banks.values())
-        self._init_store(first.n_learners, stride, torch.cat(fills, 1), pad)
+        visits = any(bank.counts_visits for bank in banks.values())
+        self._init_store(first.n_learners, stride, torch.cat(fills, 1), pad, visits)
         self.banks = nn.ModuleDict(banks)
         start = 0
         for bank in banks.values():

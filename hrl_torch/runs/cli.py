@@ -239,7 +239,22 @@ def _check(name: str, algo: str | None) -> int:
         print(f"{name} --algo {a}: " + ("ok" if not findings else f"{len(findings)} finding(s)"))
         for finding in findings:
             print(f"  - {finding}", flush=True)
+        for warning in _start_warnings(domain, a):
+            print(f"  - warning: {warning}", flush=True)
     return 1 if broken else 0
+
+
+def _start_warnings(domain, algo: str) -> list[str]:
+    """What the trainer's start would warn about the algorithm's initial values (not errors)."""
+    from hrl_torch.learners.init_check import discount_traps, warn_discount_trap
+
+    spec = domain.algos[algo]
+    learner = spec.make_learner(spec.make_graph(), 1)
+    if not discount_traps(learner):
+        return []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return warn_discount_trap(learner)
 
 
 def _training_seconds(domain, algo: str, steps: int = 10) -> float:

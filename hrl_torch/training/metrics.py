@@ -23,12 +23,14 @@ def per_seed(counts: torch.Tensor, n_learners: int) -> torch.Tensor:
 
 
 def subtask_metrics(
-    graph: TaskGraph, executor, learner, n_learners: int, skipped: bool
+    graph: TaskGraph, executor, learner, n_learners: int, skipped: bool, step: int = 0
 ) -> tuple[dict, torch.Tensor]:
     """Calls, mean duration, success and TD error of every subtask since the last log.
 
     Tags ``hrl/<subtask>/...`` and ``losses/<subtask>/td_error``; with ``skipped``
     (``on_bad_step="skip"``) also the bad env steps skipped so far; and the calls per seed.
+    A learner with ``log_scalars(step)`` adds its own (the PG subtasks': returns, policy
+    mean and spread, update norm, step size; ``hrl_torch.learners.pg_stats``).
     """
     stats, scalars = executor.stats, {}
     calls, ends = per_seed(stats.calls, n_learners), per_seed(stats.ends, n_learners)
@@ -42,9 +44,18 @@ def subtask_metrics(
         scalars[f"hrl/{name}/mean_duration"] = ratio(durations[:, k], ends[:, k])
         scalars[f"hrl/{name}/success"] = ratio(successes[:, k], ends[:, k])
         scalars[f"losses/{name}/td_error"] = ratio(td_abs[:, k], td_count[:, k])
+    log_scalars = getattr(learner, "log_scalars", None)
+    if log_scalars is not None:  # (one value per table set: summed per seed where they differ)
+        for tag, values in log_scalars(step).items():
+            scalars[tag] = values if len(values) == n_learners else _seed_means(values, n_learners)
     if skipped:  # bad env steps skipped so far
         scalars["charts/skipped_steps"] = per_seed(executor.skipped_steps, n_learners).tolist()
     return scalars, calls
+
+
+def _seed_means(values: list[float], n_learners: int) -> list[float]:
+    """Per-table-set values averaged per seed (a multi-agent learner's sets: seed-major)."""
+    return torch.tensor(values).view(n_learners, -1).nanmean(1).tolist()
 
 
 def reset_subtask_counters(executor, learner) -> None:

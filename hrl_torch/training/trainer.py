@@ -24,7 +24,9 @@ from hrl_torch.common.signals import StopOnSignal
 from hrl_torch.common.threads import warn_cpu_threads
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
+from hrl_torch.learners.action_range import use_action_bounds
 from hrl_torch.learners.base import Learner
+from hrl_torch.learners.init_check import warn_discount_trap
 from hrl_torch.modules.exploration import Exploration, Greedy
 from hrl_torch.training import metrics
 from hrl_torch.training.agent import AgentFactory, HierarchicalAgent, checked_factory
@@ -83,6 +85,8 @@ class Trainer:
         agent_factory = compat.trainer_agent_factory(agent_factory, multiagent, env)
         self.env, self.graph, self.learner, self.exploration = env, graph, learner, exploration
         warn_cpu_threads(env.device)
+        warn_discount_trap(learner, stacklevel=3)  # (before any step: the initial values)
+        use_action_bounds(learner, env)  # (Gaussian heads without a range take the env's)
         self.collector = collector
         self.evaluator = EpisodicEvaluator() if evaluator is None else evaluator
         self.config = config or TrainConfig()
@@ -318,7 +322,9 @@ class Trainer:
             self.step * self.P / max(self.counters.train_seconds, 1e-9)
         ] * self.P
         skip, graph, P = self.executor_config.on_bad_step == "skip", self.graph, self.P
-        subtasks, calls = metrics.subtask_metrics(graph, self.executor, self.learner, P, skip)
+        subtasks, calls = metrics.subtask_metrics(
+            graph, self.executor, self.learner, P, skip, self.step
+        )
         scalars.update(subtasks)
         scalars.update(self.agents.training_metrics(self.graph, calls))
         metrics.reset_subtask_counters(self.executor, self.learner)

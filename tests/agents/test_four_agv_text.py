@@ -72,6 +72,18 @@ def test_state_counts_and_the_root_reads_buffer_levels():
     assert int(root_abstract(ready)) != int(root_abstract(obs_of(warehouse_2=1, drop_off_2=3)))
 
 
+def test_the_smaller_root_sees_pi_empty_or_not():
+    small = text_hierarchy(root_levels=2)
+    assert small.node("Root").n_states == 4**4 == 256
+    fields = decode(torch.arange(0, n_flat_states(), 9_973))
+    states = root_abstract(TensorDict(fields, batch_size=fields["location"].shape), levels=2)
+    assert len(set(states.tolist())) == 256 and int(states.max()) < 256
+    levels = [int(root_abstract(obs_of(pick_up_1=p), levels=2)) for p in (0, 1, 2, 3)]
+    assert levels[0] != levels[1] == levels[2] == levels[3]
+    with pytest.raises(ValueError, match="root_levels"):
+        text_hierarchy(root_levels=4)
+
+
 def test_jobs_are_committed_and_wait_at_an_empty_bay_or_a_full_buffer():
     g = text_hierarchy()
     dm, da = g.node("DM_1"), g.node("DA_3")

@@ -30,7 +30,8 @@ from hrl_torch.modules.tiles import TileCoder
 from hrl_torch.training.agent import with_values
 from tests.helpers import TableEnv
 
-LOW, HIGH = -15.0, 15.0  # PGConfig's default action range
+LOW, HIGH = -15.0, 15.0  # the action range these tests give their Gaussian heads
+RANGE = {"action_low": LOW, "action_high": HIGH}
 
 # ---------------------------------------------------------------- a finite MDP for softmax nodes
 N_STATES, N_ACTIONS = 6, 3
@@ -217,7 +218,7 @@ def test_select_stores_the_softmax_score_of_the_chosen_child(node):
 def test_select_stores_the_gaussian_score_of_the_unsquashed_sample():
     graph = gaussian_graph()
     sigma = 0.7
-    learner = randomize(HPGRLLearner(graph, 2, PGConfig(sigma=sigma), coder=coder()), 2.0)
+    learner = randomize(HPGRLLearner(graph, 2, PGConfig(sigma=sigma, **RANGE), coder=coder()), 2.0)
     e = 16
     env = Reach([3, 4], e)
     rows = env.learner_of_row()
@@ -298,7 +299,7 @@ def estimate(trace, log_prob, online):
 @pytest.mark.parametrize("online", [False, True])
 def test_flat_softmax_gradient_estimate_is_the_autograd_gradient(online):
     graph = flat_softmax_graph()
-    config = PGConfig(frozen=True, online=online, trace_len=16)
+    config = PGConfig(frozen=True, online=online, trace_len=16, **RANGE)
     learner = randomize(HPGRLLearner(graph, 2, config))
     env = table_env([5, 6], 4)
     trace = run_frozen(graph, learner, env, 30)
@@ -320,7 +321,7 @@ def test_flat_softmax_gradient_estimate_is_the_autograd_gradient(online):
 def test_flat_gaussian_gradient_estimate_is_the_autograd_gradient(online):
     graph = gaussian_graph()
     sigma = 0.8
-    config = PGConfig(frozen=True, online=online, sigma=sigma, trace_len=4)
+    config = PGConfig(frozen=True, online=online, sigma=sigma, trace_len=4, **RANGE)
     learner = randomize(HPGRLLearner(graph, 2, config, coder=coder()), 2.0)
     env = Reach([7, 8], 4)
     trace = run_frozen(graph, learner, env, 12)
@@ -344,7 +345,7 @@ def test_actor_critic_steps_along_the_autograd_score_weighted_by_the_advantage()
     graph = gaussian_graph()
     sigma, beta = 0.9, 0.05
     critic_coder = TileCoder([0.0, 0.0, LOW], [1.0, 1.0, HIGH], [3, 3, 5], n_tilings=4)
-    config = PGConfig(alpha=beta, sigma=sigma)
+    config = PGConfig(alpha=beta, sigma=sigma, **RANGE)
     learner = randomize(ActorCriticLearner(graph, 2, coder(), critic_coder, config), 2.0)
     g = torch.Generator().manual_seed(1)
     learner.critic.w[:-1] = torch.randn(learner.critic.w.numel() - 1, generator=g)
@@ -381,3 +382,26 @@ def test_actor_critic_steps_along_the_autograd_score_weighted_by_the_advantage()
     step = (learner.theta - before)[:-1].double()
     assert expected.abs().max() > 1e-2
     assert torch.allclose(step, expected, atol=1e-4), (step - expected).abs().max()
+
+
+def test_the_action_range_comes_from_the_config_or_the_env_never_a_silent_default():
+    from types import SimpleNamespace
+
+    from hrl_torch.learners.action_range import use_action_bounds
+
+    graph = gaussian_graph()
+    bare = HPGRLLearner(graph, 1, PGConfig(), coder=coder())
+    head = bare.heads["Root"]
+    assert head.low is None  # nothing given: no +-15
+    with pytest.raises(ValueError, match="no action range: give PGConfig"):
+        use_action_bounds(bare, SimpleNamespace(action_bounds=None))
+    use_action_bounds(bare, SimpleNamespace(action_bounds=([-2.0], [3.0])))
+    assert head.range() == (-2.0, 3.0)
+    given = HPGRLLearner(graph, 1, PGConfig(**RANGE), coder=coder())
+    use_action_bounds(given, SimpleNamespace(action_bounds=([-2.0], [3.0])))  # the config wins
+    assert given.heads["Root"].range() == (LOW, HIGH)
+    with pytest.raises(ValueError, match="2 dimensions"):
+        use_action_bounds(
+            HPGRLLearner(graph, 1, PGConfig(), coder=coder()),
+            SimpleNamespace(action_bounds=([-1.0, -1.0], [1.0, 1.0])),
+        )
