@@ -712,7 +712,8 @@ MUTANTS: list[Mutant] = [
     Mutant(
         "tables-sum-not-mean",
         "hrl_torch/modules/tables.py",
-        "keep = rho**n  # (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)\n        mean = total / n.clamp_min(1.0)",
+        "keep = rho**n  # (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)\n"
+        "        mean = total / n.clamp_min(1.0)",
         "keep = rho**n  # (1 - alpha)^n; n = 0 keeps W (and the sentinel 0)\n        mean = total",
         "same-step updates of one entry move toward the sum of their targets",
         (TABLES,),
