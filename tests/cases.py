@@ -1,0 +1,41 @@
+"""The registered ``(domain, algo)`` pairs that the every-configuration tests run in `make test`.
+
+``tests/test_resume_every_algorithm.py`` and ``tests/test_any_device.py`` read their cases from
+the registry, so every newly registered pair is covered. The pairs of ``SLOW_PAIRS`` run only in
+``make test-all`` (``-m slow``): each differs from a pair the fast suite runs only in a constant
+(the same code), or is the costliest of its learner while that learner also runs in the fast
+suite on a cheaper domain and the same env runs there with the other learners.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+_SAME_CODE_AS_COM_1 = "COM-Cooperative HRL as com-1, another ComCost value only"
+_COSTLY_COOPERATIVE = (
+    "the slowest case of its test; Cooperative HRL runs fast on four-agv, the text env with "
+    "the selfish and single learners"
+)
+
+#: (domain, algo) -> why it runs only in `make test-all`
+SLOW_PAIRS: dict[tuple[str, str], str] = {
+    **{
+        (domain, f"com-{cost}"): _SAME_CODE_AS_COM_1
+        for domain in ("two-taxi", "two-taxi-text", "two-taxi-text-station")
+        for cost in (5, 10)
+    },
+    ("four-agv-text", "cooperative"): _COSTLY_COOPERATIVE,
+    ("four-agv-text", "cooperative-2s"): _COSTLY_COOPERATIVE,
+}
+
+
+def pair_param(domain: str, algo: str, *marks, id: str | None = None):  # noqa: A002
+    """``pytest.param(domain, algo)``, marked ``slow`` if the pair is in ``SLOW_PAIRS``."""
+    if (domain, algo) in SLOW_PAIRS:
+        marks = (*marks, pytest.mark.slow)
+    return pytest.param(domain, algo, marks=marks, id=id)
+
+
+def pair_params(pairs) -> list:
+    """``pair_param`` of each ``(domain, algo)``."""
+    return [pair_param(domain, algo) for domain, algo in pairs]
