@@ -184,7 +184,7 @@ def same(a, b) -> bool:
 def trainer_state(trainer) -> dict:
     """The trainer's checkpoint state without the wall clock."""
     state = trainer.state_dict()
-    del state["train_seconds"]
+    del state["train_seconds"], state["eval_seconds"]
     return state
 
 

@@ -58,10 +58,10 @@ def same_draws(policy) -> SameDraws:
     return SameDrawsRows(policy) if isinstance(policy, SelectsRows) else SameDraws(policy)
 
 
-
 #: ``None``: stop the re-choosing rounds early on the CPU only; ``True``: never (every device,
 #: no host read); ``False``: always (the fastest on a CPU, reads the device on a GPU)
 STATIC_ROUNDS: bool | None = None
+
 
 def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.Tensor:
     """The others' ``U_l`` code each agent row sees when it chooses in agent order ``[B * n]``.

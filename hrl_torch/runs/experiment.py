@@ -200,7 +200,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
 
 def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:
     """The ``AlgoSpec`` a run uses: ``algo``'s with ``opts.settings`` (``ValueError``)."""
-    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings)
+    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings, "no setting")
 
 
 def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
@@ -380,6 +380,7 @@ def _summary(domain, algo, opts, trainer, result, wall: float, plots, run_dir: P
         "envs_per_learner": trainer.E,
         "env_steps_per_learner": result.env_steps_per_learner,
         "train_seconds": round(result.train_seconds, 3),
+        "eval_seconds": round(trainer.counters.eval_seconds, 3),
         "wall_seconds": round(wall, 3),
         "env_steps_per_second": round(result.env_steps_per_second, 1),
         "threshold": trainer.config.threshold,
@@ -450,7 +451,8 @@ def format_summary(summary: dict) -> str:
         f"{summary['domain']} / {summary['algo']} ({summary['backend']}): "
         f"{len(summary['seeds'])} seeds x {summary['envs_per_learner']} envs, "
         f"{summary['env_steps_per_learner']} env steps per seed in {summary['train_seconds']} s "
-        f"({summary['env_steps_per_second']:.0f} env steps/s)"
+        f"({summary['env_steps_per_second']:.0f} env steps/s), greedy evaluation "
+        f"{summary.get('eval_seconds', float('nan'))} s"
     ]
     for r in summary["per_seed"]:
         if "final_eval_throughput" in r:  # continuing tasks (hrl_torch.training.continuing)

@@ -91,6 +91,7 @@ def _checked_request(domain_name, algo, grid, seeds, steps, metric):
     Returns ``(domain, seeds as a list, metric, the request as recorded, configurations)``.
     """
     from hrl_torch.runs import registry
+
     try:
         domain = registry.get(domain_name)
         check_choice(domain, algo, "torch")

@@ -1,4 +1,4 @@
-"""The training loop's clocks: steps, training seconds, real env steps, next log/eval/checkpoint."""
+"""The training loop's clocks: steps, training and evaluation seconds, real env steps, next due."""
 
 from __future__ import annotations
 
@@ -9,13 +9,15 @@ class LoopCounters:
     """The loop's clock and counters: what a checkpoint keeps of the loop itself.
 
     ``step`` is the agent's clock (env steps per learner); ``train_seconds`` the time spent
-    stepping; ``real_steps [P]`` the env steps each learner really took (rows being auto-reset
-    take none); ``next`` the steps at which logging, evaluation and checkpointing are due.
+    stepping, ``eval_seconds`` the time spent in greedy evaluations; ``real_steps [P]`` the env
+    steps each learner really took (rows being auto-reset take none); ``next`` the steps at
+    which logging, evaluation and checkpointing are due.
     """
 
     def __init__(self, agent, n_learners: int, eval_every: int, device) -> None:
         self.agent = agent
         self.train_seconds = 0.0
+        self.eval_seconds = 0.0
         self.real_steps = torch.zeros(n_learners, dtype=torch.float64, device=device)
         self.next = {"log": 0, "eval": eval_every, "ckpt": 0}
 
@@ -24,6 +26,7 @@ class LoopCounters:
         return {
             "step": self.agent.clock,
             "train_seconds": self.train_seconds,
+            "eval_seconds": self.eval_seconds,
             "real_steps": self.real_steps.clone(),
             "next": dict(self.next),
         }
@@ -32,5 +35,6 @@ class LoopCounters:
         """Restore ``state_dict``."""
         self.agent.clock = int(state["step"])
         self.train_seconds = float(state["train_seconds"])
+        self.eval_seconds = float(state.get("eval_seconds", 0.0))  # (0.2.0 checkpoints: none)
         self.real_steps = state["real_steps"].clone()
         self.next = {k: int(v) for k, v in state["next"].items()}

@@ -19,10 +19,10 @@ from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
-from tqdm import tqdm
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import entries
+from hrl_torch.common.progress import progress_bar
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
 
@@ -171,8 +171,7 @@ def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | No
     read_every, checks = (READ_EVERY, checks) if deferred else (1, [])
     decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
     finite_only = trainer.executor_config.on_bad_step == "skip"
-    bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
-               disable=not cfg.progress)  # fmt: skip
+    bar = progress_bar(cfg.progress, total=env.batch_size, desc="eval", unit="episode", leave=False)
     for t in range(cfg.eval_max_steps):
         read = (t + 1) % read_every == 0 or t + 1 == cfg.eval_max_steps
         if decisions_on:

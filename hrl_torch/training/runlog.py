@@ -35,6 +35,7 @@ import numpy as np
 def code_version() -> dict:
     """hrl-torch's version, and the git commit it runs from with a dirty flag (or ``None``)."""
     from hrl_torch import __version__
+
     root = Path(__file__).resolve().parents[2]  # hrl_torch/training/runlog.py
     out = {"version": __version__, "commit": None, "dirty": None}
     try:
