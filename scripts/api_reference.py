@@ -36,7 +36,10 @@ PUBLIC: dict[str, tuple[str, list[str] | None]] = {
     "hrl_torch.env.batched": ("the env contract (one batch of rows per learner)", ["BatchedEnv"]),
     "hrl_torch.env.multiagent_env": ("the multi-agent env contract", ["MultiAgentBatchedEnv"]),
     "hrl_torch.env.envcheck": ("the env contract checker", ["check_env", "EnvContractError"]),
-    "hrl_torch.env.adapters": ("gymnasium in and out", ["GymnasiumBatchEnv", "BatchedToGymnasium"]),
+    "hrl_torch.env.adapters": (
+        "gymnasium in and out",
+        ["GymnasiumBatchEnv", "BatchedToGymnasium", "stack_observations"],
+    ),
     "hrl_torch.env.pettingzoo_env": (
         "PettingZoo out (a multi-agent domain as an AEC / parallel env)",
         ["MultiAgentAECEnv", "MultiAgentParallelEnv", "make_aec"],
