@@ -67,3 +67,30 @@ def test_the_torchrl_envs_show_their_constructors():
     assert str(inspect.signature(TorchRLEnv)) == "(env: 'BatchedEnv')"
     assert str(inspect.signature(MultiAgentTorchRLEnv)) == "(env: 'MultiAgentBatchedEnv')"
     assert list(inspect.signature(AutoResetTorchRLEnv).parameters) == ["env", "stack", "resume"]
+
+
+def test_every_seed_s_tensorboard_run_has_its_settings_in_the_hparams_tab(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.plugins.hparams import plugin_data_pb2
+
+    argv = ["train", "taxi", "--algo", "maxq-q", "--seeds", "2", "--envs-per-seed", "8"]
+    argv += ["--steps", "400", "--eval-every", "400", "--eval-episodes", "2", "--no-progress"]
+    argv += ["--set", "learner.alpha=0.25"]
+    assert main([*argv, "--out", str(tmp_path)]) == 0
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    for seed in (0, 1):
+        events = EventAccumulator(str(run_dir / "tb" / f"seed_{seed}"))
+        events.Reload()
+        content = events.PluginTagToContent("hparams")
+        assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(content)
+        start = plugin_data_pb2.HParamsPluginData.FromString(
+            content["_hparams_/session_start_info"]
+        ).session_start_info
+        values = {k: getattr(v, v.WhichOneof("kind")) for k, v in start.hparams.items()}
+        assert values["seed"] == seed and values["train.steps"] == 400
+        assert values["learner.class"] == "MaxQLearner" and values["envs_per_learner"] == 8
+        experiment = plugin_data_pb2.HParamsPluginData.FromString(
+            content["_hparams_/experiment"]
+        ).experiment
+        metrics = {m.name.tag for m in experiment.metric_infos}
+        assert "charts/eval_return" in metrics and "charts/eval_return" in events.Tags()["scalars"]
