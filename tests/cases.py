@@ -15,10 +15,10 @@ _SAME_CODE_AS_COM_1 = "COM-Cooperative HRL as com-1, another ComCost value only"
 _SAME_CODE_AS_LOSS50 = "COM-Cooperative HRL as com-0-loss50, another loss probability only"
 _SAME_CODE_AS_1S = (
     "as the pair without -2s, other primitive durations only (Figure 6.5's timing; the timing "
-    "option runs fast with four-agv cooperative-2s and four-agv-text selfish-2s)"
+    "option runs fast with four-agv-earlier cooperative-2s and four-agv selfish-2s)"
 )
 _COSTLY_COOPERATIVE = (
-    "the slowest case of its test; Cooperative HRL runs fast on four-agv, the text env with "
+    "the slowest case of its test; Cooperative HRL runs fast on four-agv-earlier, the text env with "
     "the selfish and single learners"
 )
 
@@ -26,20 +26,20 @@ _COSTLY_COOPERATIVE = (
 SLOW_PAIRS: dict[tuple[str, str], str] = {
     **{
         (domain, f"com-{cost}"): _SAME_CODE_AS_COM_1
-        for domain in ("two-taxi", "two-taxi-text", "two-taxi-text-station")
+        for domain in ("two-taxi-earlier", "two-taxi", "two-taxi-station")
         for cost in (5, 10)
     },
     **{
         (domain, "com-0-loss100"): _SAME_CODE_AS_LOSS50
-        for domain in ("two-taxi", "two-taxi-text", "two-taxi-text-station")
+        for domain in ("two-taxi-earlier", "two-taxi", "two-taxi-station")
     },
     **{
-        ("four-agv-text", f"{algo}-2s"): _SAME_CODE_AS_1S
+        ("four-agv", f"{algo}-2s"): _SAME_CODE_AS_1S
         for algo in ("single", "fcfs", "hqf", "nsf")
     },
-    ("four-agv", "selfish-2s"): _SAME_CODE_AS_1S,
-    ("four-agv-text", "cooperative"): _COSTLY_COOPERATIVE,
-    ("four-agv-text", "cooperative-2s"): _COSTLY_COOPERATIVE,
+    ("four-agv-earlier", "selfish-2s"): _SAME_CODE_AS_1S,
+    ("four-agv", "cooperative"): _COSTLY_COOPERATIVE,
+    ("four-agv", "cooperative-2s"): _COSTLY_COOPERATIVE,
 }
 
 

@@ -24,8 +24,8 @@ PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name
 #: configurations whose training step makes no host read (the counting test guards them):
 #: every registered one, the four the issue names first (taxi MAXQ-Q, small-AGV HAR, the ship
 #: hybrid, four-AGV Cooperative HRL)
-NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
-NAMED.append(("four-agv", "cooperative"))
+NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering-earlier", "hybrid")]
+NAMED.append(("four-agv-earlier", "cooperative"))
 NO_HOST_READ = list(dict.fromkeys([*NAMED, *PAIRS]))
 
 
@@ -168,10 +168,10 @@ def test_a_multi_agent_action_outside_the_space_is_deferred_with_the_immediate_m
 @pytest.mark.parametrize(
     ("domain", "algo"),
     [
-        ("ship-steering", "hybrid"),
-        ("ship-steering", "flat-pg"),
-        ("ship-steering", "flat-pg-text"),  # (online, beta = 1: the entry-wise CPU weights)
-        ("taxi-fuel", "hpgrl"),
+        ("ship-steering-earlier", "hybrid"),
+        ("ship-steering-earlier", "flat-pg"),
+        ("ship-steering", "flat-pg"),  # (online, beta = 1: the entry-wise CPU weights)
+        ("taxi-fuel-earlier", "hpgrl"),
     ],
 )
 def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeypatch):
@@ -192,7 +192,7 @@ def test_masked_updates_learn_the_tables_of_compacted_ones(domain, algo, monkeyp
 
 
 def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
-    trainer = build_trainer(registry.get("ship-steering"), "flat-pg", _options())
+    trainer = build_trainer(registry.get("ship-steering-earlier"), "flat-pg", _options())
     step = trainer.env.step
 
     def bad_rate_in_row_1(action):
@@ -206,7 +206,7 @@ def test_a_bad_turning_rate_is_raised_by_train_with_the_immediate_message():
 
 def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
     opts = _options()
-    trainer = build_trainer(registry.get("taxi-fuel"), "hpgrl", opts)
+    trainer = build_trainer(registry.get("taxi-fuel-earlier"), "hpgrl", opts)
     # (rings of 3 entries: the first longer invocation; a copy: the domain's config is shared)
     trainer.learner.config = dataclasses.replace(trainer.learner.config, trace_len=2)
     trainer.learner._rows.clear()
@@ -243,7 +243,7 @@ def test_an_eager_step_off_the_cpu_copies_nothing_from_the_host(domain, algo):
     assert dict(counter.where) == {}
 
 
-@pytest.mark.parametrize(("domain", "algo"), [("taxi", "maxq-q"), ("ship-steering", "hybrid")])
+@pytest.mark.parametrize(("domain", "algo"), [("taxi", "maxq-q"), ("ship-steering-earlier", "hybrid")])
 def test_the_collector_path_reads_nothing_back_per_step(domain, algo, monkeypatch):
     """TorchRL's ``Collector`` steps the domain: no read per step there either.
 

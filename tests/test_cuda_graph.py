@@ -23,11 +23,11 @@ from hrl_torch.training.cuda_graph import StepGraph, walk
 from hrl_torch.training.trace_compile import trace_module
 from hrl_torch.training.trainer import Trainer
 
-NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering", "hybrid")]
-NAMED.append(("four-agv", "cooperative"))
-OTHERS = [("taxi-fuel", "hpgrl"), ("ship-steering", "flat-pg"), ("two-taxi", "com-1")]
-#: the text's two-taxi task: its masks index constant buffers, no tensor made from host data
-OTHERS += [("two-taxi-text", "com-1"), ("two-taxi-text-station", "cooperative")]
+NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering-earlier", "hybrid")]
+NAMED.append(("four-agv-earlier", "cooperative"))
+OTHERS = [("taxi-fuel-earlier", "hpgrl"), ("ship-steering-earlier", "flat-pg"), ("two-taxi-earlier", "com-1")]
+#: the text's two-taxi-earlier task: its masks index constant buffers, no tensor made from host data
+OTHERS += [("two-taxi", "com-1"), ("two-taxi-station", "cooperative")]
 
 
 def _trainer(domain, algo, device="cpu", **kw):
@@ -55,7 +55,7 @@ def test_a_replayed_step_learns_the_eager_tables(domain, algo):
     assert torch.equal(eager.executor.stack.inst, replayed.executor.stack.inst)
 
 
-@pytest.mark.parametrize(("domain", "algo"), [("taxi", "maxq-q"), ("ship-steering", "hybrid")])
+@pytest.mark.parametrize(("domain", "algo"), [("taxi", "maxq-q"), ("ship-steering-earlier", "hybrid")])
 def test_the_replayed_step_keeps_its_state_in_fixed_buffers_and_reads_nothing(domain, algo):
     trainer = _trainer(domain, algo)
     graph = StepGraph(trainer.train_step, trainer, backend="trace")
@@ -245,5 +245,5 @@ def test_a_cuda_graph_is_captured_only_where_it_pays():
     assert _replay_pays(_trainer("taxi", "maxq-q"))
     assert not _replay_pays(_trainer("taxi", "maxq-q", envs_per_learner=32768))  # 65,536 rows
     # the ship's rings: rows x 251 entries, under 2^21 with 8,192 rows, over with 8,356
-    assert _replay_pays(_trainer("ship-steering", "hybrid", envs_per_learner=4096))
-    assert not _replay_pays(_trainer("ship-steering", "hybrid", envs_per_learner=4178))
+    assert _replay_pays(_trainer("ship-steering-earlier", "hybrid", envs_per_learner=4096))
+    assert not _replay_pays(_trainer("ship-steering-earlier", "hybrid", envs_per_learner=4178))

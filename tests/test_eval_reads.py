@@ -23,7 +23,7 @@ from hrl_torch.training.evaluation import EvalEpisodes
 
 CONFIGS = [
     ("taxi", "maxq-q", 200),  # episodic, tabulated (frozen values, compaction)
-    ("ship-steering", "hybrid", 200),  # episodic, policy gradient below
+    ("ship-steering-earlier", "hybrid", 200),  # episodic, policy gradient below
     ("small-agv", "har", 0),  # continuing (a throughput window)
     ("trash", "cooperative", 0),  # multi-agent, the broadcast's rounds
 ]

@@ -19,7 +19,7 @@ and the fresh trainer right after loading equals the trainer that saved. The cas
 
 A checkpoint that loses the executor's accumulated ``reward`` of running subtasks makes the
 learners that read it diverge (RAR's per-subtask gains and tables on small-agv, HPGRL's
-reward-to-go on taxi-fuel) and leaves the Task-Stacks different; hence the checkpoint must fall
+reward-to-go on taxi-fuel-earlier) and leaves the Task-Stacks different; hence the checkpoint must fall
 inside running subtasks that have accumulated reward.
 """
 
@@ -53,8 +53,8 @@ EVAL_HORIZON, EVAL_BURN_IN = 20, 5  # continuing tasks: short throughput evaluat
 NON_LEARNING: dict[tuple[str, str], str] = {
     (domain, rule): "a dispatching rule learns nothing"
     for domain, rules in (
-        ("four-agv", ("fcfs", "hqf", "nsf")),
-        ("four-agv-text", ("fcfs", "hqf", "nsf", "fcfs-2s", "hqf-2s", "nsf-2s")),
+        ("four-agv-earlier", ("fcfs", "hqf", "nsf")),
+        ("four-agv", ("fcfs", "hqf", "nsf", "fcfs-2s", "hqf-2s", "nsf-2s")),
     )
     for rule in rules
 }
@@ -64,16 +64,16 @@ NON_LEARNING: dict[tuple[str, str], str] = {
 _NO_ASSEMBLY = "no assembly is delivered within the budget: every reward is 0, the tables stay 0"
 STILL_IN_BUDGET: dict[tuple[str, str], str] = {
     (d, a): _NO_ASSEMBLY
-    for d, algos in (("agv", ("hdr", "rvi-q")), ("agv-ct", ("hdr", "rvi-q")), ("four-agv", ("q",)))
+    for d, algos in (("agv", ("hdr", "rvi-q")), ("agv-ct", ("hdr", "rvi-q")), ("four-agv-earlier", ("q",)))
     for a in algos
 }
 #: domain -> reason, for domains where no running subtask ever holds accumulated reward; every
 #: other hierarchical case must checkpoint running subtasks with nonzero accumulated reward.
 NO_RUNNING_REWARD: dict[str, str] = {
     d: "the only reward (+1 per assembly) comes with the Unload step that ends DA_i"
-    for d in ("agv", "agv-ct", "four-agv")
+    for d in ("agv", "agv-ct", "four-agv-earlier")
 }
-NO_RUNNING_REWARD["four-agv-text"] = (
+NO_RUNNING_REWARD["four-agv"] = (
     "the only reward is the team's assemblies; none is delivered within the budget"
 )
 

@@ -78,7 +78,7 @@ def test_overrides_reach_the_learner_and_the_exploration_at_once():
 
 
 def test_a_pg_field_is_a_setting():
-    spec = spec_of("taxi-fuel", "hpgrl")
+    spec = spec_of("taxi-fuel-earlier", "hpgrl")
     assert spec.settings()["pg.alpha"] == 0.005
     changed = with_overrides(spec, {"pg.alpha": 0.01, "pg.trace_len": 300})
     learner = changed.make_learner(changed.make_graph(), 1)
@@ -88,7 +88,7 @@ def test_a_pg_field_is_a_setting():
 
 
 def test_a_learner_changing_its_pg_config_leaves_the_spec_alone():
-    spec = spec_of("taxi-fuel", "hpgrl")
+    spec = spec_of("taxi-fuel-earlier", "hpgrl")
     learner = spec.make_learner(spec.make_graph(), 1)
     learner.config.trace_len = 2  # (as tests/test_any_device.py does to force an overflow)
     assert spec.pg.trace_len == 200
@@ -223,7 +223,7 @@ def test_bad_names_are_refused_in_one_line(tmp_path, capsys):
 
 def test_a_pg_field_is_swept_in_process(tmp_path):
     grid = {"pg.alpha": [0.01, 0.02], "envs_per_learner": [2], "eval_episodes": [1]}
-    rows = run_sweep("taxi-fuel", "hpgrl", grid, 1, out=tmp_path, steps=32, in_process=True)
+    rows = run_sweep("taxi-fuel-earlier", "hpgrl", grid, 1, out=tmp_path, steps=32, in_process=True)
     assert [r["status"] for r in rows] == ["finished", "finished"], rows
     for row in rows:
         hparams = json.loads((tmp_path / row["run_dir"] / "hparams.json").read_text())
