@@ -18,6 +18,7 @@ from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 from hrl_torch.training.cuda_graph import StepGraph
 from hrl_torch.training.deferred import raise_pending
+from tests.cases import pair_params
 
 PAIRS = [(name, algo) for name in registry.names() for algo in registry.get(name).algos]
 #: configurations whose training step makes no host read (the counting test guards them):
@@ -80,7 +81,7 @@ def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo
     assert [p for p, dev in found if dev.type != "meta"] == []
 
 
-@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+@pytest.mark.parametrize(("domain", "algo"), pair_params(NO_HOST_READ))
 def test_a_training_step_reads_nothing_back(domain, algo, monkeypatch):
     import hrl_torch.common.devices
     import hrl_torch.multiagent.broadcast
@@ -215,7 +216,7 @@ def test_a_full_pg_ring_is_raised_at_the_next_read_with_the_immediate_message():
         raise_pending(trainer.deferred)
 
 
-@pytest.mark.parametrize(("domain", "algo"), NO_HOST_READ)
+@pytest.mark.parametrize(("domain", "algo"), pair_params(NO_HOST_READ))
 def test_every_configuration_is_replayed_on_meta_with_nothing_copied_from_the_host(domain, algo):
     """The CUDA-graph rules without a GPU: the step replays, reading and copying nothing.
 

@@ -140,7 +140,8 @@ def test_an_all_nan_evaluation_says_why():
 def test_list_shows_budgets_and_timed_training(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    assert "on the MAXQ task graph [60,000 steps x 256 envs per seed]" in out
+    budget = "60,000 env steps per seed in all, 256 envs in parallel (235 steps each)"
+    assert f"on the MAXQ task graph [{budget}]" in out
     from hrl_torch.runs import registry
     from hrl_torch.runs.cli import _training_seconds
 

@@ -20,6 +20,7 @@ from hrl_torch.runs import registry
 from hrl_torch.runs.cli_parser import parser as cli_parser
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 from hrl_torch.training.cuda_graph import StepGraph, walk
+from hrl_torch.training.trace_compile import trace_module
 from hrl_torch.training.trainer import Trainer
 
 NAMED = [("taxi", "maxq-q"), ("small-agv", "har"), ("ship-steering-earlier", "hybrid")]
@@ -153,13 +154,47 @@ def test_the_cuda_graph_learns_the_eager_tables(domain, algo):
     assert [k for k in a if not torch.equal(a[k], b[k])] == []
 
 
-def test_the_compiled_step_learns_the_eager_tables():
+def _compiled_and_eager_runs(eval_episodes: int = 3, eval_max_steps: int | None = None) -> list:
     runs = []
     for compile_step in (False, True):
         trainer = _trainer(
-            "taxi", "maxq-q", steps=160, eval_every=40, eval_episodes=3, compile_step=compile_step
-        )
+            "taxi", "maxq-q", steps=160, eval_every=40, eval_episodes=eval_episodes,
+            compile_step=compile_step,
+        )  # fmt: skip
+        if eval_max_steps:
+            trainer.config.eval_max_steps = eval_max_steps
         runs.append((trainer.train(), _tables(trainer), trainer))
+    return runs
+
+
+@pytest.mark.slow  # (inductor compiles C++: a minute or more on an empty cache)
+def test_the_compiled_step_learns_the_eager_tables():
+    (eager, a, first), (compiled, b, trainer) = _compiled_and_eager_runs()
+    assert trainer.config.compile_step and trainer._graph.backend == "inductor"
+    assert trainer._graph.failed is None and callable(trainer._graph.graph)
+    assert len(eager.curve) == 4 and eager.curve == compiled.curve
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+    assert torch.equal(first.executor.stack.inst, trainer.executor.stack.inst)
+    assert trainer.step == first.step
+
+
+def test_the_recorded_step_as_one_fx_graph_learns_the_eager_tables(monkeypatch):
+    """The graph ``compile_trace`` hands to inductor, run uncompiled: the fast suite's check of
+    ``trace_module`` (inputs, in-place writes, tuple outputs) on the real step; the slow test
+    above compiles it."""
+
+    def uncompiled(ops):
+        module, inputs = trace_module(ops)
+
+        def replay() -> None:
+            with torch.no_grad():
+                module(*inputs)
+
+        return replay
+
+    monkeypatch.setattr("hrl_torch.training.cuda_graph.compile_trace", uncompiled)
+    # (short evaluations: the curve only has to be the same, not long)
+    runs = _compiled_and_eager_runs(eval_episodes=1, eval_max_steps=40)
     (eager, a, first), (compiled, b, trainer) = runs
     assert trainer.config.compile_step and trainer._graph.backend == "inductor"
     assert trainer._graph.failed is None and callable(trainer._graph.graph)

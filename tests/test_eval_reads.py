@@ -48,6 +48,8 @@ def _trained(domain: str, algo: str, eval_max_steps: int, envs: int = 4, episode
     trainer = build_trainer(registry.get(domain), algo, opts)
     if eval_max_steps:
         trainer.config.eval_max_steps = eval_max_steps
+    if trainer.evaluator.continuing:  # a short throughput window (the defaults: 100 + 500 steps)
+        trainer.evaluator.horizon, trainer.evaluator.burn_in = 100, 20
     for _ in range(200 if envs == 4 else 400):
         trainer.train_step()
     return trainer

@@ -37,6 +37,7 @@ import agents  # noqa: F401  (registers the domains)
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 from hrl_torch.training.runlog import RunLogger
+from tests.cases import pair_param
 
 SEEDS = (0, 1)
 E = 4  # envs per learner: the clock advances by E per batched step
@@ -87,7 +88,7 @@ def _cases() -> list:
         for algo in sorted(registry.get(domain).algos):
             reason = NON_LEARNING.get((domain, algo))
             marks = [pytest.mark.skip(reason=reason)] if reason else []
-            cases.append(pytest.param(domain, algo, id=f"{domain}-{algo}", marks=marks))
+            cases.append(pair_param(domain, algo, *marks, id=f"{domain}-{algo}"))
     return cases
 
 

@@ -206,14 +206,18 @@ def test_a_sweep_over_a_learner_and_an_exploration_field_then_set_reaches_the_sa
 def test_bad_names_are_refused_in_one_line(tmp_path, capsys):
     assert main(train_args(tmp_path, "learner.alfa=0.2")) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("hrl-torch: error: --set: cannot sweep learner.alfa: choose from")
+    assert err.startswith("hrl-torch: error: --set: no setting learner.alfa: choose from")
     assert "\n" not in err and "exploration.epsilon.end" in err
+    assert err.endswith("; did you mean learner.alpha?")
+    assert main(train_args(tmp_path, "alfa=0.2")) == 2  # (the short form: the same hint)
+    assert capsys.readouterr().err.strip().endswith("did you mean learner.alpha?")
     assert main(train_args(tmp_path, "learner.alpha=-1")) == 2  # the learner's own check
     assert "alpha must be in (0, 1]" in capsys.readouterr().err
     argv = ["sweep", "taxi", "--algo", "maxq-q", "--out", str(tmp_path), "--in-process"]
     assert main([*argv, "--grid", "exploration.epsilon.ned=0.1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "cannot sweep exploration.epsilon.ned: choose from" in err and "\n" not in err
+    assert err.endswith("did you mean exploration.epsilon.end?")
     assert not list(tmp_path.glob("*/*/hparams.json"))  # nothing ran
 
 

@@ -82,17 +82,21 @@ DOMAIN = domain("column", make_graph=graph)
         2,
         "'Root'.abstract",
     ),
-    "a gymnasium env with a Box action space": (
+    # (a Box action space is taken since the adapter maps gymnasium's spaces as they are:
+    # tests/envs/test_gymnasium_spaces.py; other action spaces are refused in one line)
+    "a gymnasium env with a MultiBinary action space": (
         """
 import gymnasium
 from hrl_torch.env.adapters import GymnasiumBatchEnv
+class Buttons(gymnasium.Env):
+    observation_space = gymnasium.spaces.Discrete(4)
+    action_space = gymnasium.spaces.MultiBinary(3)
 def make_env(seeds, envs_per_learner, backend="torch"):
-    make = lambda: gymnasium.make("MountainCarContinuous-v0")
-    return GymnasiumBatchEnv(make, seeds, envs_per_learner)  # the user's line
-DOMAIN = domain("box", make_env=make_env)
+    return GymnasiumBatchEnv(Buttons, seeds, envs_per_learner)  # the user's line
+DOMAIN = domain("buttons", make_env=make_env)
 """,
         1,
-        "needs a Discrete action space",
+        "GymnasiumBatchEnv takes Discrete or Box",
     ),
 }
 
@@ -242,8 +246,11 @@ def test_a_gymnasium_dict_observation_space_is_stacked_field_by_field():
     class TupleObs(DictObs):
         observation_space = gym.spaces.Tuple((gym.spaces.Discrete(5), gym.spaces.Discrete(2)))
 
-    with pytest.raises(ValueError, match="stacks Box, Discrete or Dict observations, got Tuple"):
-        GymnasiumBatchEnv(TupleObs, [0], 2)
+        def reset(self, seed=None, options=None):
+            return (1, 0), {}
+
+    td = GymnasiumBatchEnv(TupleObs, [0], 2).reset()  # a Tuple: fields by position
+    assert td["0"].shape == (2,) and td["1"].shape == (2,)
 
 
 def test_an_observation_outside_a_tabulated_graphs_states_names_value_and_row(monkeypatch):

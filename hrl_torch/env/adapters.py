@@ -3,6 +3,15 @@
 ``GymnasiumBatchEnv`` runs a list of unmodified gymnasium envs (one Python ``step`` each, the
 slower path) behind the same interface as the torch-batched domains, so a hierarchy written for
 a batched domain runs on, e.g., gymnasium's own ``Taxi-v4``.
+
+Spaces. Observations of any of gymnasium's array spaces (``Discrete``, ``Box``,
+``MultiDiscrete``, ``MultiBinary``) and of ``Dict`` / ``Tuple`` spaces of them come in as they
+are: each row's observations are stacked into tensors, a ``Dict`` into one field per key (a
+nested ``Dict`` nested), a ``Tuple`` into fields ``"0"``, ``"1"``, .... The abstraction hook
+is ``decode``: it maps those stacked observations to the fields the hierarchy's subtasks read
+(e.g. a ``MultiDiscrete`` observation to one integer state). Actions: ``Discrete``
+(``n_actions``) or a ``Box`` of any shape (``action_bounds``: its low and high as nested
+lists; the executor's action rows ``[B, *shape]`` are handed to the envs as they are).
 """
 
 from __future__ import annotations
@@ -14,7 +23,23 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-Decoder = Callable[[torch.Tensor], dict[str, torch.Tensor]]
+Decoder = Callable[[torch.Tensor | dict], dict[str, torch.Tensor]]
+
+
+def stack_observations(observations: list, space: gym.Space) -> torch.Tensor | dict:
+    """Rows' observations of ``space`` as a tensor ``[B, ...]``, or a dict of them.
+
+    ``Dict`` spaces give a dict by key (nested for a nested ``Dict``), ``Tuple`` spaces a dict
+    by position (``"0"``, ``"1"``, ...); every other space one stacked tensor.
+    """
+    if isinstance(space, gym.spaces.Dict):
+        return {
+            k: stack_observations([o[k] for o in observations], sub) for k, sub in space.items()
+        }
+    if isinstance(space, gym.spaces.Tuple):
+        parts = enumerate(space.spaces)
+        return {str(i): stack_observations([o[i] for o in observations], sub) for i, sub in parts}
+    return torch.as_tensor(np.stack([np.asarray(o) for o in observations]))
 
 
 class GymnasiumBatchEnv:
@@ -25,13 +50,13 @@ class GymnasiumBatchEnv:
         seeds: one seed per learner; env ``e`` of learner ``p`` is first reset with seed
             ``seeds[p] * 100_003 + e`` and then continues its own generator.
         envs_per_learner: ``E``.
-        decode: maps the stacked observations ``[B, ...]`` to the observation fields the
-            hierarchy reads (default: ``{"observation": obs}``; a ``Dict`` observation space:
-            its fields, each stacked).
+        decode: the abstraction hook: maps the stacked observations (``[B, ...]``, or a
+            dict of them for a ``Dict`` / ``Tuple`` space: ``stack_observations``) to the
+            observation fields the hierarchy reads (default: a dict as it is, a tensor as
+            ``{"observation": obs}``).
 
     Raises:
-        ValueError: an action space other than ``Discrete``, or an observation space that
-            cannot be stacked (a ``Tuple``, a nested ``Dict``).
+        ValueError: an action space other than ``Discrete`` or ``Box`` (one line).
     """
 
     #: no counter-based random stream to restart (each gymnasium env keeps its own generator)
@@ -42,6 +67,8 @@ class GymnasiumBatchEnv:
     n_agents = None
     observation_sizes: dict = {}
     observation_bounds: dict = {}
+    #: a ``Box`` action space's ``(low, high)`` as nested lists (``None``: ``Discrete``)
+    action_bounds: tuple[list, list] | None = None
 
     def __init__(
         self,
@@ -57,30 +84,14 @@ class GymnasiumBatchEnv:
         self.device = torch.device("cpu")
         self.envs = [make_env() for _ in range(self.batch_size)]
         space = self.envs[0].action_space
-        if not isinstance(space, gym.spaces.Discrete):
-            raise ValueError(
-                f"GymnasiumBatchEnv needs a Discrete action space (the hierarchy's primitives "
-                f"are action indices), got {space}: discretize it with a gymnasium "
-                "ActionWrapper, or write a BatchedEnv with action_bounds"
-            )
-        self.n_actions = int(space.n)
-        observed = self.envs[0].observation_space
-        if not isinstance(observed, gym.spaces.Box | gym.spaces.Discrete | gym.spaces.MultiDiscrete
-                          | gym.spaces.MultiBinary | gym.spaces.Dict):  # fmt: skip
-            raise ValueError(
-                f"GymnasiumBatchEnv stacks Box, Discrete or Dict observations, got {observed}: "
-                "wrap the env with gymnasium.wrappers.FlattenObservation"
-            )
-        self._keys = list(observed.spaces) if isinstance(observed, gym.spaces.Dict) else None
-        if self._keys is not None and any(
-            isinstance(observed[k], gym.spaces.Dict | gym.spaces.Tuple) for k in self._keys
-        ):
-            raise ValueError(
-                f"GymnasiumBatchEnv stacks a Dict of Box or Discrete fields, got {observed}: "
-                "wrap the env with gymnasium.wrappers.FlattenObservation"
-            )
-        default = (lambda obs: dict(obs)) if self._keys is not None else None
-        self.decode = decode or default or (lambda obs: {"observation": obs})
+        if isinstance(space, gym.spaces.Discrete):
+            self.n_actions = int(space.n)
+        elif isinstance(space, gym.spaces.Box):
+            self.n_actions = None
+            self.action_bounds = (space.low.tolist(), space.high.tolist())
+        else:
+            raise ValueError(f"action space {space}: GymnasiumBatchEnv takes Discrete or Box")
+        self.decode = decode or _default_decode
         self.done = torch.zeros(self.batch_size, dtype=torch.bool)
         self._obs: list = [None] * self.batch_size
 
@@ -114,9 +125,12 @@ class GymnasiumBatchEnv:
             if is_init[b]:
                 self._obs[b], _ = env.reset()
                 continue
-            if not env.action_space.contains(env.action_space.dtype.type(action[b])):
-                raise ValueError(f"action {action[b]} outside {env.action_space} (env row {b})")
-            self._obs[b], r, terminated[b], truncated[b], _ = env.step(action[b])
+            space, a = env.action_space, action[b]
+            if self.n_actions is None:  # a Box: the row's action array in the space's dtype
+                a = np.asarray(a, dtype=space.dtype)
+            if not space.contains(a if self.n_actions is None else space.dtype.type(a)):
+                raise ValueError(f"action {action[b]} outside {space} (env row {b})")
+            self._obs[b], r, terminated[b], truncated[b], _ = env.step(a)
             reward[b] = r
         self.done = torch.from_numpy(terminated | truncated)
         return self._output(
@@ -127,11 +141,7 @@ class GymnasiumBatchEnv:
         )
 
     def _output(self, reward, terminated, truncated, is_init) -> TensorDict:
-        if self._keys is not None:  # a Dict space: each field stacked on its own
-            stacked = {k: torch.as_tensor(np.stack([o[k] for o in self._obs])) for k in self._keys}
-        else:
-            stacked = torch.as_tensor(np.stack(self._obs))
-        fields = self.decode(stacked)
+        fields = dict(self.decode(stack_observations(self._obs, self.envs[0].observation_space)))
         fields.update(
             reward=reward.float(),
             duration=(~is_init).float(),
@@ -147,6 +157,10 @@ class GymnasiumBatchEnv:
 
     def load_state_dict(self, state: dict) -> None:
         """See ``state_dict``: nothing to restore."""
+
+
+def _default_decode(obs: torch.Tensor | dict) -> dict:
+    return obs if isinstance(obs, dict) else {"observation": obs}
 
 
 class BatchedToGymnasium(gym.Env):

@@ -7,6 +7,8 @@ imported here and in the collector module only.
 
 from __future__ import annotations
 
+import inspect
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
@@ -15,11 +17,32 @@ from torchrl.envs import EnvBase
 from hrl_torch.env.batched import BatchedEnv
 
 
+def init_signature(cls: type) -> type:
+    """``cls`` with ``__init__``'s signature as its own (class decorator).
+
+    TorchRL's ``EnvBase`` has a metaclass whose ``__call__(*args, **kwargs)`` is what
+    ``inspect.signature`` and ``help`` would show as an ``EnvBase`` subclass's constructor.
+    """
+    params = list(inspect.signature(cls.__init__).parameters.values())[1:]  # (without self)
+    cls.__signature__ = inspect.Signature(params)
+    return cls
+
+
+@init_signature
 class TorchRLEnv(EnvBase):
     """Wrap a ``BatchedEnv`` (any batch size) as a TorchRL env with specs.
 
     Observation keys are the domain's declared fields; ``duration`` (time of the step) is an
     extra observation so continuous-time learners can read it from collector rollouts.
+    ``TorchRLEnv(env)``: ``batch_size`` and ``device`` are the env's; a discrete action space
+    becomes a ``Categorical`` spec, a continuous one (``action_bounds``) a ``Bounded`` one.
+
+    Args:
+        env: the domain (a ``BatchedEnv`` of any batch size).
+
+    Example:
+        ``TorchRLEnv(TaxiEnv([0, 1], 3)).rollout(10)``: 2 seeds x 3 rows; TorchRL's
+        ``check_env_specs`` passes on it and the other domains' envs (``tests/envs/``).
     """
 
     def __init__(self, env: BatchedEnv) -> None:

@@ -44,6 +44,7 @@ from torchrl.envs import EnvBase
 
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.env.multiagent_env import MultiAgentBatchedEnv
+from hrl_torch.env.torchrl_env import init_signature
 
 GROUP = "agents"
 _DONE_KEYS = ("done", "terminated", "truncated")
@@ -66,6 +67,7 @@ def _flags(shape: tuple[int, ...], device) -> dict[str, Categorical]:
     return {k: Categorical(2, shape=shape, dtype=torch.bool, device=device) for k in _DONE_KEYS}
 
 
+@init_signature
 class MultiAgentTorchRLEnv(EnvBase):
     """Wrap a ``MultiAgentBatchedEnv`` (any batch size) as a TorchRL multi-agent env.
 

@@ -72,9 +72,7 @@ class RVIQLearner(TabularLearner):
         self.n_entries = self.Q.total
         self._root_width = int(graph.node_n_children[graph.root])  # (read once, on the CPU)
         if reference_state is not None:  # (made once, moved with the module: no host copy)
-            self.register_buffer(
-                "reference_index", torch.tensor(reference_state), persistent=False
-            )
+            self.register_buffer("reference_index", torch.tensor(reference_state), persistent=False)
         q_sum = torch.as_tensor(init, dtype=torch.float64) * self.n_entries  # (or per learner)
         self.register_buffer("q_sum", q_sum.expand(n_learners).clone())
 

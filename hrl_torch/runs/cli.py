@@ -192,6 +192,12 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _budget(steps: int, envs: int) -> str:
+    """A seed's budget: its env steps in all, taken ``envs`` at a time."""
+    batched = -(-steps // envs)
+    return f"{steps:,} env steps per seed in all, {envs} envs in parallel ({batched:,} steps each)"
+
+
 def _list(timed: bool) -> int:
     """``hrl-torch list``: domains, algorithms, budgets (``--timed``: training time here)."""
     from hrl_torch.runs import registry
@@ -205,7 +211,7 @@ def _list(timed: bool) -> int:
         backends = ", ".join(domain.backends)
         print(f"{name} [{registry.source(name)}]: {domain.description} (backends: {backends})")
         for algo, spec in sorted(domain.algos.items()):
-            budget = f"{spec.train.steps:,} steps x {spec.envs_per_learner} envs per seed"
+            budget = _budget(spec.train.steps, spec.envs_per_learner)
             if timed:
                 seconds = _training_seconds(domain, algo)
                 shown = f"{seconds:.1f}" if seconds < 10 else f"{seconds:,.0f}"
@@ -409,7 +415,7 @@ def _check_settings(spec, settings: dict) -> None:
     if not settings:
         return
     try:
-        changed = with_overrides(spec, settings)
+        changed = with_overrides(spec, settings, unknown="no setting")
         changed.make_learner(changed.make_graph(), 1)
         changed.make_exploration(changed.train)
     except (TypeError, ValueError) as err:

@@ -10,6 +10,7 @@ budget), the learner and exploration as data (``hrl_torch.common.config.Make``) 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import warnings
 from collections.abc import Callable, Sequence
@@ -136,7 +137,7 @@ def setting_names(spec: AlgoSpec) -> list[str]:
     return [*TRAIN_KEYS, "envs_per_learner", *spec.settings(classes=False)]
 
 
-def with_overrides(spec: AlgoSpec, overrides: dict) -> AlgoSpec:
+def with_overrides(spec: AlgoSpec, overrides: dict, unknown: str = "cannot sweep") -> AlgoSpec:
     """``spec`` with settings changed by name; ``spec`` itself is unchanged (thread-safe).
 
     Names: the ``TrainConfig`` fields of ``TRAIN_KEYS`` and ``envs_per_learner`` (whole
@@ -146,15 +147,31 @@ def with_overrides(spec: AlgoSpec, overrides: dict) -> AlgoSpec:
     here (a tensor per learner is fine): their classes check them when built.
 
     Raises:
-        ValueError: one line: an unknown name (with the names there are), or a bad type for a
-            ``TrainConfig`` field or ``envs_per_learner``.
+        ValueError: one line: an unknown name after the words ``unknown`` (``"cannot sweep"``
+            for a sweep's grid, ``"no setting"`` for ``train --set``), with the names there are
+            and the nearest ones, or a bad type for a ``TrainConfig`` field or
+            ``envs_per_learner``.
     """
     for name, value in overrides.items():
-        spec = _with(spec, _full_name(spec, name), value)
+        spec = _with(spec, _full_name(spec, name, unknown), value)
     return spec
 
 
-def _full_name(spec: AlgoSpec, name: str) -> str:
+def _nearest(spec: AlgoSpec, name: str) -> list[str]:
+    """The settings nearest to ``name`` (difflib's ratio, 0.6 at least; ties all named).
+
+    A learner argument's short form (``alpha`` for ``learner.alpha``) is compared too.
+    """
+    names = setting_names(spec)
+    short = {n.removeprefix("learner."): n for n in names if n.startswith("learner.")}
+    ratio = {n: difflib.SequenceMatcher(None, name, n).ratio() for n in [*names, *short]}
+    best = max(ratio.values(), default=0.0)
+    if best < 0.6:
+        return []
+    return list(dict.fromkeys(short.get(n, n) for n, r in ratio.items() if r >= best - 1e-9))
+
+
+def _full_name(spec: AlgoSpec, name: str, unknown: str = "cannot sweep") -> str:
     if name in (*TRAIN_KEYS, "envs_per_learner"):
         return name
     names = spec.settings()
@@ -163,8 +180,11 @@ def _full_name(spec: AlgoSpec, name: str) -> str:
     if f"learner.{name}" in names:  # the short form of a learner argument
         return f"learner.{name}"
     learner = names.get("learner", "a function (no fields)")
+    near = _nearest(spec, name)
+    hint = f"; did you mean {' or '.join(near)}?" if near else ""
     raise ValueError(
-        f"cannot sweep {name}: choose from {', '.join(setting_names(spec))} (learner: {learner})"
+        f"{unknown} {name}: choose from {', '.join(setting_names(spec))} (learner: {learner})"
+        + hint
     )
 
 

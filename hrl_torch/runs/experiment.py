@@ -200,7 +200,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
 
 def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:
     """The ``AlgoSpec`` a run uses: ``algo``'s with ``opts.settings`` (``ValueError``)."""
-    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings)
+    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings, "no setting")
 
 
 def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:

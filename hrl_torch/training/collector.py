@@ -48,6 +48,7 @@ from torchrl.envs import EnvBase
 
 from hrl_torch.common.ops import put
 from hrl_torch.env.batched import BatchedEnv
+from hrl_torch.env.torchrl_env import init_signature
 from hrl_torch.execution.stack import TaskStack
 from hrl_torch.training.agent import HierarchicalAgent
 
@@ -104,6 +105,7 @@ def _observation_spec(env: BatchedEnv, stack: TaskStack) -> Composite:
     return Composite(obs, shape=(b,), device=dev)
 
 
+@init_signature
 class AutoResetTorchRLEnv(EnvBase):
     """A ``BatchedEnv`` as a TorchRL env that keeps the domain's next-step auto-reset.
 

@@ -30,11 +30,11 @@ from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
-from tqdm import tqdm
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import argmax_last
 from hrl_torch.common.signals import stop_requested
+from hrl_torch.common.progress import progress_bar
 from hrl_torch.training.deferred import deferred_meanwhile, raise_pending
 from hrl_torch.training.evaluation import Evaluator
 
@@ -121,8 +121,9 @@ class ThroughputEvaluator(Evaluator):
         sums = torch.zeros(self._n_sums, env.batch_size, device=env.device)
         clock = torch.zeros(env.batch_size, device=env.device)  # each row's time so far
         end = self.burn_in_time + (self.horizon_time or 0.0)
-        bar = tqdm(total=n_steps, desc="eval", unit="step", leave=False,
-                   disable=not trainer.config.progress)  # fmt: skip
+        bar = progress_bar(
+            trainer.config.progress, total=n_steps, desc="eval", unit="step", leave=False
+        )
         self.last_partial = None
         for k in range(n_steps):
             self.last_partial = stop_requested()

@@ -1,4 +1,4 @@
-"""The training loop's clocks: steps, training seconds, real env steps, next log/eval/checkpoint."""
+"""The training loop's clocks: steps, training and evaluation seconds, real env steps, next due."""
 
 from __future__ import annotations
 

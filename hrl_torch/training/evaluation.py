@@ -19,11 +19,11 @@ from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
-from tqdm import tqdm
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import entries
 from hrl_torch.common.signals import stop_requested
+from hrl_torch.common.progress import progress_bar
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
 
@@ -184,8 +184,7 @@ def _play(trainer, agent, env, action, episodes: EvalEpisodes, checks: list | No
     read_every, checks = (READ_EVERY, checks) if deferred else (1, [])
     decisions_on = agent.executor.batch_size == env.batch_size and agent.executor.depth > 1
     finite_only = trainer.executor_config.on_bad_step == "skip"
-    bar = tqdm(total=env.batch_size, desc="eval", unit="episode", leave=False,
-               disable=not cfg.progress)  # fmt: skip
+    bar = progress_bar(cfg.progress, total=env.batch_size, desc="eval", unit="episode", leave=False)
     cut = None
     for t in range(cfg.eval_max_steps):
         cut = stop_requested()

@@ -92,6 +92,39 @@ def hparams_of(**parts) -> dict:
     return out
 
 
+#: the metrics the HParams tab shows beside the settings (each run's own scalars of that tag)
+HPARAMS_METRICS = ("charts/eval_return", "charts/eval_success", "charts/eval_throughput")
+
+
+def flat_hparams(hparams: dict, prefix: str = "") -> dict:
+    """``hparams`` with nested dicts flattened to dotted names, as TensorBoard takes them.
+
+    Numbers, strings and bools stay as they are; anything else becomes its JSON text.
+    """
+    out = {}
+    for key, value in hparams.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flat_hparams(value, f"{name}."))
+        elif isinstance(value, (bool, int, float, str)):
+            out[name] = value
+        else:
+            out[name] = json.dumps(value, default=json_default)
+    return out
+
+
+def tensorboard_hparams(hparams: dict) -> tuple:
+    """The HParams plugin's three summaries for one TensorBoard run.
+
+    Its settings (``flat_hparams``) and its metrics (``HPARAMS_METRICS``), written into the
+    run itself: the HParams tab lists every seed of every run and sweep trial with its
+    settings beside its evaluation scalars.
+    """
+    from torch.utils.tensorboard.summary import hparams as hparams_summaries
+
+    return hparams_summaries(flat_hparams(hparams), dict.fromkeys(HPARAMS_METRICS, 0.0))
+
+
 def make_run_dir(root: str | Path, domain: str, algo: str) -> Path:
     """A new, unique ``root/{domain}__{algo}__{timestamp}`` folder, made by this call.
 
@@ -127,7 +160,8 @@ class RunLogger:
     Args:
         run_dir: the run folder.
         seeds: the seed of each learner (one TensorBoard run each).
-        hparams: logged once per seed as text and to ``hparams.json``.
+        hparams: logged once per seed as text, to TensorBoard's HParams tab (flattened to
+            dotted names, with the seed; ``tensorboard_hparams``) and to ``hparams.json``.
         tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
         resumed_at: a resumed run's checkpoint step. ``hparams.json`` keeps the original
             settings and appends this resume to its ``"resumes"``; rows logged after the step
@@ -165,6 +199,8 @@ class RunLogger:
                 w = SummaryWriter(str(self.run_dir / "tb" / f"seed_{s}"), purge_step=purge)
                 if resumed_at is None:
                     w.add_text("hparams", text, 0)
+                    for summary in tensorboard_hparams({**hparams, "seed": s}):
+                        w.file_writer.add_summary(summary)
                 self.writers.append(w)
 
     def _record_hparams(self, hparams: dict, resumed_at: int | None) -> dict:

@@ -20,6 +20,7 @@ from tqdm import tqdm
 from hrl_torch.analysis.monitor import LeafRewardMonitor
 from hrl_torch.common import compat
 from hrl_torch.common.checkpoint import Checkpointer
+from hrl_torch.common.progress import progress_bar
 from hrl_torch.common.signals import StopOnSignal
 from hrl_torch.common.threads import warn_cpu_threads
 from hrl_torch.execution.executor import ExecutorConfig
@@ -180,14 +181,10 @@ class Trainer:
         """
         cfg = self.config
         total = cfg.steps if steps is None else steps
-        bar = tqdm(
-            total=total,
-            initial=self.step,
-            unit="step",
-            disable=not cfg.progress,
-            desc="train",
+        bar = progress_bar(
+            cfg.progress, total=total, initial=self.step, unit="step", desc="train",
             dynamic_ncols=True,
-        )
+        )  # fmt: skip
         with StopOnSignal() as stop:  # the final evaluation and save included
             while self.step < total and stop.signal is None:
                 t0 = time.perf_counter()
