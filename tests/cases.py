@@ -18,7 +18,8 @@ _SAME_CODE_AS_1S = (
     "option runs fast with four-agv-earlier cooperative-2s and four-agv selfish-2s)"
 )
 _COSTLY_COOPERATIVE = (
-    "the slowest case of its test; Cooperative HRL runs fast on four-agv-earlier, the text env with "
+    "the slowest case of its test; Cooperative HRL runs fast on four-agv-earlier, the text env "
+    "with "
     "the selfish and single learners"
 )
 

@@ -33,8 +33,8 @@ from tensordict import TensorDict
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import argmax_last
-from hrl_torch.common.signals import stop_requested
 from hrl_torch.common.progress import progress_bar
+from hrl_torch.common.signals import stop_requested
 from hrl_torch.training.deferred import deferred_meanwhile, raise_pending
 from hrl_torch.training.evaluation import Evaluator
 

@@ -22,8 +22,8 @@ from tensordict import TensorDict
 
 from hrl_torch.common.devices import static_shapes
 from hrl_torch.common.ops import entries
-from hrl_torch.common.signals import stop_requested
 from hrl_torch.common.progress import progress_bar
+from hrl_torch.common.signals import stop_requested
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
 
