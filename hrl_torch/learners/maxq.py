@@ -123,26 +123,7 @@ class MaxQLearner(TabularLearner):
         banks = (self.C, self.C_int) if self.internal else (self.C,)
         # (penalty: -inf for unavailable children, 0 elsewhere; q + penalty masks them)
         penalty, dead, rows = self.composite_rows(ctx, *banks, penalty=True)
-        value = self.primitive_values(ctx, self.V)
-        value_int = value.clone() if self.internal else value
-        q_rows = []
-        for ids, kids, unavailable, gone, c, *c_int in self.groups(penalty, dead, *rows):
-            child_v = take_flat(value, kids)
-            q_ext = child_v + c
-            if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
-                q_int = child_v + c_int[0]
-                best = argmax_last(q_int + unavailable, keepdim=True)
-                v_ext = q_ext.gather(-1, best).squeeze(-1)
-                v_int = q_int.gather(-1, best).squeeze(-1)
-                value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
-            else:
-                q_int = q_ext
-                v_ext = (q_ext + unavailable).amax(-1)
-            value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
-            q_rows.append(q_int)
-        ctx.values["V"] = value
-        ctx.values["V_int"] = value_int
-        ctx.values["Q"] = torch.cat(q_rows, 1)
+        bottom_up_values(self, ctx, penalty, dead, rows)
 
     # ------------------------------------------------------------------ updates
     def targets(self, level, terminal, v_next, v_next_int):
@@ -218,3 +199,32 @@ class MaxQLearner(TabularLearner):
         if self.internal:  # (C~ sits at a fixed distance from C, as in ``update``)
             targets.append((self.C_int, internal))
         self.update_visited(batch, table, valid, alpha, targets)
+
+
+def bottom_up_values(learner, ctx, penalty, dead, rows) -> None:
+    """``V``, ``V_int`` ``[B, T]`` and ``Q`` ``[B, Tc, A]`` into ``ctx.values``, bottom-up.
+
+    ``V(i, s) = max_a [V(a, s) + C(i, s, a)]`` (the MAXQ decomposition); with internal
+    completions the greedy child of ``Q~`` picks both (Eq. 3.6). ``rows``: the completion rows
+    ``C`` (and ``C~``) of every composite table at its state (a table's or a network's).
+    """
+    value = learner.primitive_values(ctx, learner.V)
+    value_int = value.clone() if learner.internal else value
+    q_rows = []
+    for ids, kids, unavailable, gone, c, *c_int in learner.groups(penalty, dead, *rows):
+        child_v = take_flat(value, kids)
+        q_ext = child_v + c
+        if learner.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
+            q_int = child_v + c_int[0]
+            best = argmax_last(q_int + unavailable, keepdim=True)
+            v_ext = q_ext.gather(-1, best).squeeze(-1)
+            v_int = q_int.gather(-1, best).squeeze(-1)
+            value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
+        else:
+            q_int = q_ext
+            v_ext = (q_ext + unavailable).amax(-1)
+        value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
+        q_rows.append(q_int)
+    ctx.values["V"] = value
+    ctx.values["V_int"] = value_int
+    ctx.values["Q"] = torch.cat(q_rows, 1)

@@ -31,17 +31,15 @@ from collections.abc import Mapping, Sequence
 import torch
 
 from hrl_torch.common.ops import (
-    argmax_last,
     columns,
     entries,
     lookup,
-    take_flat,
 )
 from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.learners.maxq import MaxQLearner
+from hrl_torch.learners.maxq import MaxQLearner, bottom_up_values
 from hrl_torch.modules.exploration import Schedule
 from hrl_torch.modules.heads import attach_table_heads
 from hrl_torch.modules.neural import (
@@ -236,26 +234,7 @@ class NeuralMaxQLearner(TabularLearner):
             _, _, table_rows = self.composite_rows(ctx, *banks)
             keep = self.tabular[:, None]
             rows = tuple(torch.where(keep, t, r) for t, r in zip(table_rows, rows, strict=True))
-        value = self.primitive_values(ctx, self.V)
-        value_int = value.clone() if self.internal else value
-        q_rows = []
-        for ids, kids, unavailable, gone, c, *c_int in self.groups(penalty, dead, *rows):
-            child_v = take_flat(value, kids)
-            q_ext = child_v + c
-            if self.internal:  # V(i, s) = Q(i, s, a*) with a* greedy for Q~ (Eq. 3.6)
-                q_int = child_v + c_int[0]
-                best = argmax_last(q_int + unavailable, keepdim=True)
-                v_ext = q_ext.gather(-1, best).squeeze(-1)
-                v_int = q_int.gather(-1, best).squeeze(-1)
-                value_int.index_copy_(1, ids, v_int.masked_fill(gone, 0.0))
-            else:
-                q_int = q_ext
-                v_ext = (q_ext + unavailable).amax(-1)
-            value.index_copy_(1, ids, v_ext.masked_fill(gone, 0.0))
-            q_rows.append(q_int)
-        ctx.values["V"] = value
-        ctx.values["V_int"] = value_int
-        ctx.values["Q"] = torch.cat(q_rows, 1)
+        bottom_up_values(self, ctx, penalty, dead, rows)
 
     # ------------------------------------------------------------------ updates
     def update(self, batch, step: int) -> None:
