@@ -1,5 +1,7 @@
 """``check_env`` passes every domain of the repository and names each broken rule of a bad env."""
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -135,7 +137,7 @@ def test_an_abstraction_returning_floats_is_named():
 
 def test_run_experiment_checks_the_env_before_writing_anything(tmp_path):
     domain = registry.get("taxi")
-    broken = type(domain)(**{**vars(domain), "name": "broken-taxi"})
+    broken = dataclasses.replace(domain, name="broken-taxi")
     broken.make_env = lambda seeds, e, backend="torch": RewardColumn(seeds, e)
     opts = RunOptions(seeds=[0], envs_per_learner=2, steps=8, out=str(tmp_path), progress=False)
     with pytest.raises(EnvContractError, match=r"field 'reward' expected shape"):

@@ -38,7 +38,7 @@ def rows(bank, n_features, seed=1):
 @pytest.mark.parametrize("greedy", [False, True])
 def test_autograd_score_equals_the_tile_coded_heads_hand_written_one(greedy):
     coder = TileCoder(low=[0.0, 0.0], high=[10.0, 10.0], resolution=[4, 3], n_tilings=3)
-    tiles = TileGaussianPolicyHead("tiles", coder, sigma=0.7)
+    tiles = TileGaussianPolicyHead("tiles", coder, sigma=0.7, action_low=-15.0, action_high=15.0)
     linear = MLPGaussianPolicyHead("linear", 2, hidden=(), sigma=0.7, coder=coder, bias=False)
     assert linear.width == coder.n_features
     bank_t, bank_l = bound(tiles), bound(linear)

@@ -90,7 +90,8 @@ def test_bad_domain_modules_and_clashes_are_one_line(tmp_path, capsys, monkeypat
     assert capsys.readouterr().err.strip() == "hrl-torch: error: No module named 'no_such_module'"
     assert main(["--domain-module", "json", "list"]) == 2
     assert capsys.readouterr().err.strip() == (
-        "hrl-torch: error: module 'json' defines no DOMAIN or DOMAINS (DomainSpec)"
+        "hrl-torch: error: module 'json' defines no DOMAIN or DOMAINS (DomainSpec) and registers "
+        "no algorithm"
     )
     (tmp_path / "clash.py").write_text(
         "from dataclasses import replace\n"

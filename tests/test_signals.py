@@ -64,7 +64,10 @@ def test_a_signal_during_the_final_evaluation_still_writes_the_checkpoint(
     (run_dir,) = tmp_path.iterdir()
     assert load_checkpoint(run_dir / "checkpoint.pt")["trainer"]["step"] >= 400
     summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["status"] == "interrupted" and summary["per_seed"][0]["final_eval_return"]
+    assert summary["status"] == "interrupted" and summary["partial_eval"]
+    # the cut evaluation is no final return: null in the JSON, named as not finite
+    assert summary["per_seed"][0]["final_eval_return"] is None
+    assert "per_seed[0].final_eval_return (nan)" in summary["not_finite"]
     assert f"hrl-torch: {name} at step " in capsys.readouterr().err
     monkeypatch.setattr(Trainer, "_evaluate_and_log", evaluate)
     # the budget is spent but the final evaluation was cut: resuming plays it and finishes

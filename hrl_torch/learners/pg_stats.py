@@ -44,8 +44,14 @@ class PGStats(nn.Module):
     def __init__(self, n_learners: int, theta: torch.Tensor, n_groups: int) -> None:
         super().__init__()
         self.n_learners, self.n_groups = n_learners, n_groups
-        self.register_buffer("returns", torch.zeros(2, n_learners * n_groups), persistent=False)
-        self.register_buffer("theta_at_log", theta.detach().clone(), persistent=False)
+        # (saved: a resumed run logs what the uninterrupted one does)
+        self.register_buffer("returns", torch.zeros(2, n_learners * n_groups))
+        self.register_buffer("theta_at_log", theta.detach().clone())
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        for name in ("returns", "theta_at_log"):  # checkpoints of 0.1 have no statistics
+            state_dict.setdefault(prefix + name, getattr(self, name).clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def record(self, reward: torch.Tensor, count: torch.Tensor, ended, cell) -> None:
         """Add the returns of the invocations ``ended [B, S]`` to their (learner, group) ``cell``.

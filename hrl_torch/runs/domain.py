@@ -331,6 +331,9 @@ class DomainSpec:
 
     def with_registered_algorithms(self) -> DomainSpec:
         """This domain with the algorithms registered since it was made (plugins) added."""
-        if self.tasks is None or not set(algorithms.algorithms()) - set(self.algos):
+        if self.tasks is None or not any(
+            name not in self.algos and self.tasks.runs(a)
+            for name, a in algorithms.algorithms().items()
+        ):
             return self
         return dataclasses.replace(self, algos={n: self.algos[n] for n in self.own_algos})

@@ -511,7 +511,7 @@ def format_summary(summary: dict) -> str:
         f"{len(summary['seeds'])} seeds x {summary['envs_per_learner']} envs, "
         f"{summary['env_steps_per_learner']} env steps per seed in {summary['train_seconds']} s "
         f"({summary['env_steps_per_second']:.0f} env steps/s)"
-        + (f", greedy evaluations {summary['eval_seconds']} s" if "eval_seconds" in summary else "")
+        + (f", greedy evaluation {summary['eval_seconds']} s" if "eval_seconds" in summary else "")
     ]
     for r in summary["per_seed"]:
         if "final_eval_throughput" in r:  # continuing tasks (hrl_torch.training.continuing)
