@@ -93,12 +93,7 @@ class Trainer:
         self.config = config or TrainConfig()
         self.executor_config = executor_config or ExecutorConfig()
         self.eval_env, self.logger = eval_env, logger
-        if eval_env is not None and eval_env.n_learners != env.n_learners:
-            raise ValueError(
-                f"the eval env has {eval_env.n_learners} learners (seeds), the training env "
-                f"{env.n_learners}: build it with one seed per learner ([eval_seed] * "
-                f"{env.n_learners}), eval_episodes rows each"
-            )
+        check_eval_env(env, eval_env)
         self.agents = checked_factory(agent_factory, env, learner, graph)
         self.P, self.E = env.n_learners, env.envs_per_learner
         self.agent = self.make_agent(env, "explore")
@@ -343,3 +338,13 @@ class Trainer:
     def load(self, path) -> None:
         """Continue from a checkpoint written by ``save``."""
         self.checkpointer.load(path)
+
+
+def check_eval_env(env, eval_env) -> None:
+    """An eval env has one learner per training learner (``ValueError`` otherwise)."""
+    if eval_env is not None and eval_env.n_learners != env.n_learners:
+        raise ValueError(
+            f"the eval env has {eval_env.n_learners} learners (seeds), the training env "
+            f"{env.n_learners}: build it with one seed per learner ([eval_seed] * "
+            f"{env.n_learners}), eval_episodes rows each"
+        )
