@@ -130,15 +130,6 @@ def _run(args: argparse.Namespace) -> int:
     if args.project is not None and not os.path.isdir(args.project):
         raise UserError(f"--project {args.project}: no such folder")
     _load_domains(args.project, args.domain_module)
-    from hrl_torch.common.checkpoint import CheckpointError
-    from hrl_torch.common.limits import SizeLimitError
-    from hrl_torch.common.safe_files import RunFolderError
-    from hrl_torch.env.envcheck import EnvContractError
-    from hrl_torch.hierarchy.subtask import GraphError
-    from hrl_torch.runs.experiment import format_summary, run_experiment
-    from hrl_torch.runs.faults import one_line
-    from hrl_torch.runs.runlock import RunLockedError
-
     if args.command == "list":
         return _list(args.timed)
     if args.command == "eval":
@@ -156,6 +147,20 @@ def _run(args: argparse.Namespace) -> int:
             return (run_population_command if args.population else run_sweep_command)(args)
         except ValueError as err:
             raise UserError.of(err) from err
+    return _train(args)
+
+
+def _train(args: argparse.Namespace) -> int:
+    """``hrl-torch train``: the run, its summary, and the exit code of a signal."""
+    from hrl_torch.common.checkpoint import CheckpointError
+    from hrl_torch.common.limits import SizeLimitError
+    from hrl_torch.common.safe_files import RunFolderError
+    from hrl_torch.env.envcheck import EnvContractError
+    from hrl_torch.hierarchy.subtask import GraphError
+    from hrl_torch.runs.experiment import format_summary, run_experiment
+    from hrl_torch.runs.faults import one_line
+    from hrl_torch.runs.runlock import RunLockedError
+
     domain, algo, opts = _train_options(args)  # every input is checked before anything is written
     if opts is None:
         return 0  # a finished run: nothing to do
