@@ -111,7 +111,8 @@ from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner, RuleLearner, SMDPQLearner
-from hrl_torch.modules.exploration import Schedule, linear_epsilon
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.modules.schedules import Schedule
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig

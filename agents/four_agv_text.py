@@ -76,7 +76,7 @@ from hrl_torch.common.config import Make
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.learners import RuleLearner
-from hrl_torch.modules.exploration import Linear
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig

@@ -75,7 +75,8 @@ from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.learners.neural_maxq import NeuralMaxQLearner
-from hrl_torch.modules.exploration import VisitCount, linear_epsilon
+from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.modules.schedules import VisitCount
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec, algo_family
 from hrl_torch.training.config import TrainConfig
@@ -237,7 +238,7 @@ def visit_step_size(learner: MaxQLearner, high: float, low: float) -> MaxQLearne
 
     ``n`` counts the entry's updates so far, this one included (Section 6.3: ``alpha_t(i)``
     "should be gradually decreased to zero"; the floor ``low`` keeps tracking the other
-    robot's changing policy): ``hrl_torch.modules.exploration.VisitCount``, which a tabular
+    robot's changing policy): ``hrl_torch.modules.schedules.VisitCount``, which a tabular
     learner also takes as its ``alpha``. The counts are its tables' buffer ``visits``.
     """
     steps = VisitCount(low, high)  # (checks 0 <= low <= high <= 1)

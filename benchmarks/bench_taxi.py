@@ -41,7 +41,8 @@ import torch
 from agents.taxi import DOMAIN
 from benchmarks import plain_maxq
 from benchmarks.plain_maxq import GymTaxi, Hyper, PlainRun, TableTaxi
-from hrl_torch.modules.exploration import Constant, EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Constant, Linear
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 
 ALGO = "maxq-q"

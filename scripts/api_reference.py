@@ -51,17 +51,12 @@ PUBLIC: dict[str, tuple[str, list[str] | None]] = {
         ["HierarchicalExecutor", "ExecutorConfig", "SubtaskTimeoutError", "BadStepError"],
     ),
     "hrl_torch.modules.exploration": (
-        "exploration policies and schedules",
-        [
-            "Greedy",
-            "EpsilonGreedy",
-            "Boltzmann",
-            "TriggeredEpsilon",
-            "linear_epsilon",
-            "Constant",
-            "Linear",
-            "Exponential",
-        ],
+        "exploration policies",
+        ["Greedy", "EpsilonGreedy", "Boltzmann", "TriggeredEpsilon", "linear_epsilon"],
+    ),
+    "hrl_torch.modules.schedules": (
+        "schedules of step sizes and exploration rates",
+        ["Constant", "Linear", "Exponential", "VisitCount"],
     ),
     "hrl_torch.modules.tiles": ("tile coding", ["TileCoder"]),
     "hrl_torch.modules.policies": (

@@ -14,7 +14,8 @@ from hrl_torch.env.batched import BatchedEnv
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer
 

@@ -22,7 +22,7 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from agents.four_agv import GAMMA
 from agents.four_agv_text import text_hierarchy
-from hrl_torch.modules.exploration import VisitCount
+from hrl_torch.modules.schedules import VisitCount
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 from hrl_torch.training.continuing import ThroughputEvaluator

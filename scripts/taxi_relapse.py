@@ -16,7 +16,8 @@ import torch
 from agents.taxi import PESSIMISTIC_INIT, taxi_hierarchy
 from envs.taxi import TaxiEnv
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer
 

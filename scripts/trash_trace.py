@@ -29,7 +29,8 @@ from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.multiagent.cooperative import Cooperation, CooperativeSubtask, cooperation_levels
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer

@@ -19,7 +19,7 @@ from dataclasses import replace
 import torch
 
 import agents  # noqa: F401  (registers the domains)
-from hrl_torch.modules.exploration import VisitCount
+from hrl_torch.modules.schedules import VisitCount
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
 

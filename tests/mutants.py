@@ -358,7 +358,7 @@ MUTANTS: list[Mutant] = [
     ),
     Mutant(
         "linear-schedule-direction",
-        "hrl_torch/modules/exploration.py",
+        "hrl_torch/modules/schedules.py",
         "return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)",
         "return self.end if frac == 1.0 else self.start + frac * (self.start - self.end)",
         "a linear schedule moves away from its end value",

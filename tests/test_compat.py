@@ -145,3 +145,15 @@ def test_the_0_1_domain_file_with_a_positional_algo_spec_trains_from_the_cli(tmp
     assert len(spec) == 2, found  # one per AlgoSpec call of the file (maxq-q and q)
     assert any("corridor_0_1.py" in m for m in spec), spec
     assert list((tmp_path / "runs").glob("corridor-0-1__q__*/summary.json"))
+
+
+def test_a_schedule_on_its_0_2_0_path_warns_and_is_the_same_class():
+    from hrl_torch.modules import schedules
+
+    with pytest.warns(DeprecationWarning, match=r"exploration\.Linear moved to .*schedules\.Linear"):
+        from hrl_torch.modules.exploration import Linear
+    assert Linear is schedules.Linear
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # today's names: no warning
+        from hrl_torch.modules.exploration import EpsilonGreedy  # noqa: F401
+        from hrl_torch.modules.schedules import VisitCount  # noqa: F401

@@ -15,7 +15,7 @@ import torch
 import agents  # noqa: F401  (registers the domains)
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.common.sync_count import HostSyncCounter
-from hrl_torch.modules.exploration import Exponential, Linear
+from hrl_torch.modules.schedules import Exponential, Linear
 from hrl_torch.runs import registry
 from hrl_torch.runs.cli_parser import parser as cli_parser
 from hrl_torch.runs.experiment import RunOptions, build_trainer

@@ -3,15 +3,13 @@ import torch
 from hrl_torch.common.rng import BatchRNG
 from hrl_torch.modules.exploration import (
     Boltzmann,
-    Constant,
     EpsilonGreedy,
-    Exponential,
     Greedy,
-    Linear,
     masked_argmax,
     uniform_choice,
     uniforms_needed,
 )
+from hrl_torch.modules.schedules import Constant, Exponential, Linear
 
 
 def test_schedules():

@@ -201,3 +201,15 @@ def test_modules_and_classes_stay_small():
                     big[f"{p.relative_to(ROOT)}:{node.name}"] = n
     assert big == {}
     assert len((ROOT / "hrl_torch" / "training" / "trainer.py").read_text().splitlines()) <= 350
+
+
+def test_the_design_docs_package_table_names_every_module_in_its_layer():
+    rows = {}
+    for line in (ROOT / "docs" / "design.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0].isdigit():
+            rows[int(cells[0])] = (cells[1].strip("`/"), {m.strip() for m in cells[3].split(",")})
+    assert [rows[k][0] for k in sorted(rows)] == LAYERS, rows
+    for package, listed in rows.values():
+        present = {p.stem for p in (ROOT / "hrl_torch" / package).glob("*.py")} - {"__init__"}
+        assert listed == present, (package, sorted(present - listed), sorted(listed - present))

@@ -11,7 +11,8 @@ from hrl_torch.common.ops import discount
 from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.learners import TabularLearner
 from hrl_torch.learners.base import finished
-from hrl_torch.modules.exploration import Constant, EpsilonGreedy
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Constant
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer
 from tests.test_example_two_rooms import load_example

@@ -8,7 +8,8 @@ from envs.taxi import TaxiEnv
 from hrl_torch.common.checkpoint import CheckpointError
 from hrl_torch.execution.executor import ExecutorConfig
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.modules.tables import TableBank
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer

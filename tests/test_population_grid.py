@@ -26,7 +26,8 @@ from hrl_torch.learners import (
     SMDPQLearner,
 )
 from hrl_torch.learners.pg import PGConfig
-from hrl_torch.modules.exploration import Boltzmann, EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import Boltzmann, EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.modules.tables import TableBank, TableSet
 from hrl_torch.runs import registry
 from hrl_torch.runs.cli_parser import add_sweep_parser

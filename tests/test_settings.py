@@ -13,7 +13,8 @@ from hrl_torch.common import config
 from hrl_torch.common.checkpoint import load_checkpoint
 from hrl_torch.common.config import Budget, Make, parse_settings
 from hrl_torch.learners import MaxQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.runs import registry
 from hrl_torch.runs.cli import main
 from hrl_torch.runs.domain import setting_names, with_overrides

@@ -41,7 +41,7 @@ from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.three_part import ThreePartLearner
-from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.schedules import Schedule
 
 
 class GainEstimate(nn.Module):

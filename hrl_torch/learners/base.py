@@ -28,14 +28,12 @@ from hrl_torch.learners.validate import check_fraction, check_step_size
 from hrl_torch.modules.eval_plan import EvalPlan
 from hrl_torch.modules.exploration import (
     Exploration,
-    Schedule,
-    VisitCount,
-    as_schedule,
     has_per_learner_values,
     on_device,
     uniforms_needed,
 )
 from hrl_torch.modules.heads import attach_table_heads
+from hrl_torch.modules.schedules import Schedule, VisitCount, as_schedule
 from hrl_torch.modules.tables import TableBank, TableLayout, TableSet
 
 

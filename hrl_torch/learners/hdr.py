@@ -17,7 +17,7 @@ from hrl_torch.common.ops import discount
 from hrl_torch.execution.transitions import PRIMITIVE
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.learners.three_part import ThreePartLearner
-from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.schedules import Schedule
 
 
 class HDRLearner(ThreePartLearner):

@@ -27,7 +27,7 @@ from hrl_torch.execution.transitions import LEVEL, PRIMITIVE
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner, finished
-from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.schedules import Schedule
 
 
 class MaxQLearner(TabularLearner):

@@ -40,7 +40,6 @@ from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner, finished
 from hrl_torch.learners.maxq import MaxQLearner, bottom_up_values
-from hrl_torch.modules.exploration import Schedule
 from hrl_torch.modules.heads import attach_table_heads
 from hrl_torch.modules.neural import (
     NeuralCompletionHead,
@@ -49,6 +48,7 @@ from hrl_torch.modules.neural import (
     factored_features,
     one_hot_features,
 )
+from hrl_torch.modules.schedules import Schedule
 
 
 def learner_rows(learner: torch.Tensor, like: torch.Tensor) -> torch.Tensor:

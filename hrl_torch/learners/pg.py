@@ -54,9 +54,9 @@ from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg_stats import PGStats
 from hrl_torch.learners.pg_traces import apply_traces, check_overflow, overflow_error, ring_entries
 from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
-from hrl_torch.modules.exploration import Schedule, as_schedule
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
+from hrl_torch.modules.schedules import Schedule, as_schedule
 from hrl_torch.modules.tables import TableBank
 from hrl_torch.modules.tiles import TileCoder
 

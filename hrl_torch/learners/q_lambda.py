@@ -40,7 +40,7 @@ from hrl_torch.learners.base import TabularLearner
 from hrl_torch.learners.pg import invocation_ended
 from hrl_torch.learners.validate import check_fraction
 from hrl_torch.modules.eval_plan import EvalPlan
-from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.schedules import Schedule
 from hrl_torch.modules.tables import TableBank
 
 

@@ -31,7 +31,7 @@ from hrl_torch.execution.transitions import LEVEL
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import TabularLearner
-from hrl_torch.modules.exploration import Schedule
+from hrl_torch.modules.schedules import Schedule
 
 
 class RVIQLearner(TabularLearner):

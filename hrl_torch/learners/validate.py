@@ -7,7 +7,7 @@ import math
 import torch
 
 from hrl_torch.common.per_learner import refuse
-from hrl_torch.modules.exploration import Constant, Exponential, Linear, Schedule, VisitCount
+from hrl_torch.modules.schedules import Constant, Exponential, Linear, Schedule, VisitCount
 
 
 def schedule_values(value: float | Schedule) -> list[float]:

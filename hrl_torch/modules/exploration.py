@@ -1,21 +1,20 @@
-"""Exploration over masked action values: greedy, epsilon-greedy and Boltzmann, with schedules.
+"""Exploration over masked action values: greedy, epsilon-greedy and Boltzmann.
 
 Each strategy maps action values ``q [B, A]``, an availability mask ``[B, A]`` and a block of
 uniforms ``u [B, A + 1]`` to the chosen child ``[B]`` and a flag ``[B]`` saying whether that
 choice is greedy (the flag the average-reward learners use to update their gains only after
 non-random actions). Taking pre-drawn uniforms keeps the random stream of a row independent of
 how many other rows needed a decision.
-Schedules are functions of the learner's env-step count, so every learner of a population sees
-the same exploration rate at the same point of its own training (a schedule's values may be
-per-learner tensors, ``hrl_torch.common.per_learner``: then each learner its own);
-``TriggeredEpsilon`` (Section 5.3's hybrid) is a per-learner epsilon that starts decaying when
-a domain's monitor says so.
+The rates may be schedules (``hrl_torch.modules.schedules``: functions of the learner's
+env-step count, the same module the learners' step sizes use); ``TriggeredEpsilon``
+(Section 5.3's hybrid) is a per-learner epsilon that starts decaying when a domain's monitor
+says so.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import warnings
 
 import torch
 from torch import nn
@@ -23,135 +22,10 @@ from torch import nn
 from hrl_torch.common.config import Budget, Make
 from hrl_torch.common.devices import move_attributes
 from hrl_torch.common.ops import argmax_last
-from hrl_torch.common.per_learner import at_learners, holds_per_learner, is_per_learner, per_learner
+from hrl_torch.common.per_learner import at_learners, holds_per_learner, is_per_learner
+from hrl_torch.modules import schedules as _schedules
 
 _TIE_NOISE = 1e-6  # random tie-breaking among equal values (tables start equal)
-
-
-class _PerLearnerFields:
-    """A schedule whose numbers may be per-learner tensors ``[P]`` (kept as float64)."""
-
-    def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if is_per_learner(value):
-                object.__setattr__(self, name, per_learner(value))
-
-
-@dataclass(frozen=True)
-class Constant(_PerLearnerFields):
-    """A fixed value."""
-
-    value: float
-
-    def __call__(self, step: int) -> float:
-        """Value at ``step``."""
-        return self.value
-
-
-@dataclass(frozen=True)
-class Linear(_PerLearnerFields):
-    """Linear from ``start`` to ``end`` over ``steps`` env steps, then ``end``."""
-
-    start: float
-    end: float
-    steps: int
-
-    def __call__(self, step: int) -> float:
-        """Value at ``step``."""
-        if isinstance(step, torch.Tensor):  # (a device clock: the same float64 arithmetic)
-            frac = (step.double() / max(self.steps, 1)).clamp(0.0, 1.0)
-            return torch.where(frac == 1.0, self.end, self.start + frac * (self.end - self.start))
-        frac = min(max(step / max(self.steps, 1), 0.0), 1.0)
-        return self.end if frac == 1.0 else self.start + frac * (self.end - self.start)
-
-
-@dataclass(frozen=True)
-class Exponential(_PerLearnerFields):
-    """``start * decay ** (step // every)``, never below ``minimum``.
-
-    With per-learner values, equal to the numbers' schedule up to rounding (torch's ``pow``).
-    """
-
-    start: float
-    decay: float
-    every: int = 1
-    minimum: float = 0.0
-
-    def __call__(self, step: int) -> float:
-        """Value at ``step``."""
-        every = max(self.every, 1)
-        if isinstance(step, torch.Tensor):  # (a device clock)
-            value = self.start * torch.pow(self.decay, (step // every).double())
-        else:
-            value = self.start * self.decay ** (step // every)
-        if isinstance(value, torch.Tensor):
-            if is_per_learner(self.minimum):
-                return torch.maximum(self.minimum, value)
-            return value.clamp_min(self.minimum)
-        if is_per_learner(self.minimum):
-            return self.minimum.clamp_min(value)
-        return max(self.minimum, value)
-
-
-@dataclass(frozen=True)
-class VisitCount:
-    """A per-entry step size from the entry's visits: ``alpha_n = clip(1 / n, low, high)``.
-
-    ``n`` counts the updates of that one table entry, this one included: the clipped harmonic
-    step size, Section 6.3's ``alpha_t(i)`` that "should be gradually decreased to zero" (the
-    stochastic-approximation conditions hold for ``1 / n``; ``low > 0`` keeps tracking a
-    changing target, e.g. other agents' policies, and ``high < 1`` keeps the initial value from
-    being overwritten by the first target). A tabular learner given ``alpha=VisitCount(...)``
-    keeps a count per entry (its tables' ``visits`` buffer, saved with them). Calling it gives
-    itself: the tables apply it (``hrl_torch.modules.tables``).
-
-    Args:
-        low: the floor ``alpha_min`` (0: plain ``1 / n``).
-        high: the ceiling (1: the first update replaces the initial value).
-    """
-
-    low: float = 0.0
-    high: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not (0.0 <= self.low <= self.high <= 1.0 and self.high > 0.0):
-            raise ValueError(
-                f"VisitCount needs 0 <= low <= high <= 1 and high > 0, got low={self.low}, "
-                f"high={self.high}"
-            )
-
-    def __call__(self, step: int) -> VisitCount:
-        """The same at every step (the visits, not the clock, set the size)."""
-        return self
-
-    def keep(self, before: torch.Tensor, hits: torch.Tensor) -> torch.Tensor:
-        """``prod_{n = k+1}^{k+m} (1 - alpha_n)``: what ``m`` updates after ``k`` keep of ``W``.
-
-        ``before`` (``k``) and ``hits`` (``m``): float tensors of one shape. The product in
-        closed form: ``(1-high)^(visits at the ceiling) * (harmonic part, telescoping to
-        first / last) * (1-low)^(visits at the floor)``, so ``m`` same-step updates of one entry
-        move it exactly as ``m`` successive ones toward their mean would.
-        """
-        ceiling = math.floor(1.0 / self.high + 1e-9)  # n <= ceiling: 1/n >= high
-        floor = math.floor(1.0 / self.low + 1e-9) if self.low > 0 else math.inf  # n > floor: low
-        after = before + hits
-        at_high = (after.clamp_max(ceiling) - before).clamp_min(0.0)
-        start = before.clamp_min(ceiling)
-        end = after.clamp_max(floor) if math.isfinite(floor) else after
-        harmonic = torch.where(end > start, start / end.clamp_min(1.0), torch.ones_like(end))
-        at_low = (after - before.clamp_min(floor)).clamp_min(0.0) if self.low > 0 else 0.0
-        keep = torch.pow(1.0 - self.high, at_high) * harmonic
-        return keep * (1.0 - self.low) ** at_low if self.low > 0 else keep
-
-
-Schedule = Constant | Linear | Exponential | VisitCount
-
-
-def as_schedule(value: float | torch.Tensor | Schedule) -> Schedule:
-    """Wrap a plain number (or a per-learner tensor ``[P]``) as a constant schedule."""
-    if is_per_learner(value):
-        return Constant(value)
-    return Constant(float(value)) if isinstance(value, int | float) else value
 
 
 def masked_argmax(q: torch.Tensor, available: torch.Tensor) -> torch.Tensor:
@@ -201,8 +75,8 @@ class EpsilonGreedy:
     per-learner epsilon needs the rows' learners (``select``'s ``learner [B]``).
     """
 
-    def __init__(self, epsilon: float | Schedule) -> None:
-        self.epsilon = as_schedule(epsilon)
+    def __init__(self, epsilon: float | _schedules.Schedule) -> None:
+        self.epsilon = _schedules.as_schedule(epsilon)
         for name in ("value", "start", "end"):  # a probability at every step
             v = getattr(self.epsilon, name, None)
             if v is None or isinstance(v, bool) or not isinstance(v, int | float | torch.Tensor):
@@ -234,8 +108,8 @@ class EpsilonGreedy:
 class Boltzmann:
     """Softmax over available children with temperature ``temperature(step)``."""
 
-    def __init__(self, temperature: float | Schedule) -> None:
-        self.temperature = as_schedule(temperature)
+    def __init__(self, temperature: float | _schedules.Schedule) -> None:
+        self.temperature = _schedules.as_schedule(temperature)
 
     def select(
         self,
@@ -327,4 +201,22 @@ def linear_epsilon(start: float, end: float, share) -> Make:
     As data (``AlgoSpec.exploration``): fields ``epsilon.start``, ``epsilon.end`` and
     ``epsilon.steps.fraction``; ``share`` e.g. ``Fraction(1, 3)``.
     """
-    return Make(EpsilonGreedy, epsilon=Make(Linear, start=start, end=end, steps=Budget(share)))
+    schedule = Make(_schedules.Linear, start=start, end=end, steps=Budget(share))
+    return Make(EpsilonGreedy, epsilon=schedule)
+
+
+#: the schedules' old home (0.2.0): they live in ``hrl_torch.modules.schedules`` from 0.2.1 on
+_MOVED_TO_SCHEDULES = frozenset(_schedules.__all__)
+
+
+def __getattr__(name: str):
+    """0.2.0's ``exploration.Linear`` (and the other schedules), with a DeprecationWarning."""
+    if name in _MOVED_TO_SCHEDULES:
+        warnings.warn(
+            f"hrl_torch.modules.exploration.{name} moved to hrl_torch.modules.schedules.{name}; "
+            "the old name goes in 0.3.0",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(_schedules, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -20,7 +20,7 @@ from hrl_torch.common.devices import MovesTensorAttrs
 from hrl_torch.common.ops import group_of_rows, lookup, take_flat
 from hrl_torch.common.per_learner import at_entries, check_size, is_per_learner
 from hrl_torch.hierarchy.graph import TaskGraph
-from hrl_torch.modules.exploration import VisitCount
+from hrl_torch.modules.schedules import VisitCount
 
 
 @dataclass(frozen=True)

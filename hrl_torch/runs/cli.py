@@ -157,7 +157,7 @@ def _train(args: argparse.Namespace) -> int:
     from hrl_torch.common.safe_files import RunFolderError
     from hrl_torch.env.envcheck import EnvContractError
     from hrl_torch.hierarchy.subtask import GraphError
-    from hrl_torch.runs.experiment import format_summary, run_experiment
+    from hrl_torch.runs.experiment import SettingError, format_summary, run_experiment
     from hrl_torch.runs.faults import one_line
     from hrl_torch.runs.runlock import RunLockedError
 
@@ -166,6 +166,10 @@ def _train(args: argparse.Namespace) -> int:
         return 0  # a finished run: nothing to do
     try:
         run_dir, summary = run_experiment(domain, algo, opts)
+    except SettingError as err:  # refused where it is applied, before anything is written
+        if not opts.settings:  # the domain's own value: a bug, not the user's input
+            raise
+        raise UserError(f"--set: {err}") from err
     except (
         RunLockedError,
         CheckpointError,
@@ -340,7 +344,7 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch.runs.experiment import RunOptions, check_choice
     from hrl_torch.training.steps import single_agent_only
 
-    given, settings = _given_options(args)
+    given, _ = _given_options(args)
     display = {
         "progress": not args.no_progress,
         "tensorboard": not args.no_tensorboard,
@@ -368,7 +372,6 @@ def _train_options(args: argparse.Namespace):
             single_agent_only(domain.make_env([0], 1, backend, **spec.env_options))
     except (KeyError, FileNotFoundError, CheckpointError, ValueError) as err:
         raise UserError.of(err) from err
-    _check_settings(spec, settings)
     given.setdefault("seeds", list(range(5)))
     out = "runs" if args.out is None else args.out
     if not out.strip():
@@ -411,20 +414,6 @@ def _parsed_settings(items: list[str]) -> dict:
         return parse_settings(items)
     except ValueError as err:
         raise UserError.of(err) from err
-
-
-def _check_settings(spec, settings: dict) -> None:
-    """``--set``: an unknown name, or a value the learner or exploration refuses, in one line."""
-    from hrl_torch.runs.domain import with_overrides
-
-    if not settings:
-        return
-    try:
-        changed = with_overrides(spec, settings, unknown="no setting")
-        changed.make_learner(changed.make_graph(), 1)
-        changed.make_exploration(changed.train)
-    except (TypeError, ValueError) as err:
-        raise UserError(f"--set: {' '.join(str(err).split())}") from err
 
 
 def _check_writable_folder(path: str, option: str) -> None:

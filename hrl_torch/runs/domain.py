@@ -9,6 +9,7 @@ budget), the learner and exploration as data (``hrl_torch.common.config.Make``) 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import functools
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING
 from hrl_torch.common import config
 from hrl_torch.common.config import Make
 from hrl_torch.execution.executor import ExecutorConfig
+from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.runs import algorithms
 from hrl_torch.training.config import TrainConfig
 
@@ -34,6 +36,7 @@ __all__ = [
     "AlgoSpec",
     "DomainSpec",
     "EnvFactory",
+    "SettingError",
     "algo_family",
     "setting_names",
     "with_overrides",
@@ -83,19 +86,21 @@ class AlgoSpec:
     env_options: dict = field(default_factory=dict)
 
     def make_learner(self, graph: TaskGraph, n_learners: int) -> Learner:
-        """The learner for ``n_learners`` table sets on ``graph``."""
+        """The learner for ``n_learners`` table sets on ``graph`` (``SettingError``)."""
         # (the learner gets its own copy of ``pg``: a spec's setting is never shared or changed)
         pg = None if self.pg is None else dataclasses.replace(self.pg)
         positional = (graph, n_learners) if pg is None else (graph, n_learners, pg)
-        if isinstance(self.learner, Make):
-            return self.learner.build(*positional)
-        return self.learner(*positional)
+        with refused_settings():
+            if isinstance(self.learner, Make):
+                return self.learner.build(*positional)
+            return self.learner(*positional)
 
     def make_exploration(self, train: TrainConfig) -> Exploration:
-        """The exploration; its ``Budget`` shares read ``train.steps``."""
-        if isinstance(self.exploration, Make):
-            return self.exploration.build(budget=train.steps)
-        return self.exploration(train)
+        """The exploration; its ``Budget`` shares read ``train.steps`` (``SettingError``)."""
+        with refused_settings():
+            if isinstance(self.exploration, Make):
+                return self.exploration.build(budget=train.steps)
+            return self.exploration(train)
 
     def settings(self, classes: bool = True) -> dict:
         """Every field of the learner, exploration and PG setting by dotted name, as used.
@@ -115,6 +120,25 @@ class AlgoSpec:
     def _positional(self, part: str) -> int:
         """Positional values the part's build gets (those parameters are not fields)."""
         return {"learner": 2 if self.pg is None else 3}.get(part, 0)
+
+
+class SettingError(ValueError):
+    """A value a learner's or exploration's class refuses when it is built, in one line.
+
+    ``AlgoSpec.make_learner`` and ``make_exploration`` raise it, so a bad ``--set`` value is
+    refused where the value is used, before a run writes anything (no separate check build).
+    """
+
+
+@contextlib.contextmanager
+def refused_settings():
+    """``TypeError`` / ``ValueError`` of a build as ``SettingError`` (a graph's own: as it is)."""
+    try:
+        yield
+    except (GraphError, SettingError):
+        raise
+    except (TypeError, ValueError) as err:
+        raise SettingError(" ".join(str(err).split())) from err
 
 
 #: the numeric ``TrainConfig`` fields ``with_overrides`` sets by name

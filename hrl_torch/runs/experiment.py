@@ -26,7 +26,15 @@ from hrl_torch.env.envcheck import check_env
 from hrl_torch.multiagent.cooperative import MultiAgentConfig
 from hrl_torch.multiagent.factory import MultiAgentFactory
 from hrl_torch.runs import registry
-from hrl_torch.runs.domain import AlgoSpec, DomainSpec, EnvFactory, algo_family, with_overrides  # noqa: F401 (re-exported)
+from hrl_torch.runs.domain import (  # noqa: F401 (re-exported)
+    AlgoSpec,
+    DomainSpec,
+    EnvFactory,
+    SettingError,
+    algo_family,
+    refused_settings,
+    with_overrides,
+)
 from hrl_torch.runs.failures import RunFailed
 from hrl_torch.runs.plots import plot_curves
 from hrl_torch.runs.run_record import check_belongs, validate_run_record
@@ -140,9 +148,16 @@ def check_choice(domain: DomainSpec, algo: str, backend: str) -> AlgoSpec:
     return domain.algos[algo]
 
 
-def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) -> Trainer:
-    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up."""
-    spec = algo_spec(domain, algo, opts)
+def build_trainer(
+    domain: DomainSpec, algo: str, opts: RunOptions, logger=None, *, spec: AlgoSpec | None = None
+) -> Trainer:
+    """Env, eval env, graph, learner and exploration of ``algo`` on ``domain``, wired up.
+
+    ``spec``: ``algo_spec(domain, algo, opts)`` when the caller has it already (the settings
+    are applied once per run). A learner or exploration that refuses a value raises
+    ``SettingError`` before anything is returned.
+    """
+    spec = algo_spec(domain, algo, opts) if spec is None else spec
     config = _train_config(spec, opts)
     schedule_steps = opts.schedule_steps or config.steps
     seeds = list(opts.seeds)
@@ -160,6 +175,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         agents = MultiAgentFactory(env.n_agents, spec.multiagent or MultiAgentConfig())
     sets = len(seeds) if agents is None else agents.table_sets(len(seeds))
     learner = spec.make_learner(graph, sets).to(opts.device)
+    exploration = spec.make_exploration(replace(config, steps=schedule_steps))
     graph = graph.to(opts.device)
     env = env.to(opts.device)
     eval_env = None if eval_env is None else eval_env.to(opts.device)
@@ -168,7 +184,7 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
         env,
         graph,
         learner,
-        spec.make_exploration(replace(config, steps=schedule_steps)),
+        exploration,
         config,
         eval_env,
         spec.executor,
@@ -199,8 +215,10 @@ def build_trainer(domain: DomainSpec, algo: str, opts: RunOptions, logger=None) 
 
 
 def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:
-    """The ``AlgoSpec`` a run uses: ``algo``'s with ``opts.settings`` (``ValueError``)."""
-    return with_overrides(check_choice(domain, algo, opts.backend), opts.settings, "no setting")
+    """The ``AlgoSpec`` a run uses: ``algo``'s with ``opts.settings`` (``SettingError``)."""
+    spec = check_choice(domain, algo, opts.backend)
+    with refused_settings():  # (an unknown name or a value of the wrong type)
+        return with_overrides(spec, opts.settings, "no setting")
 
 
 def _train_config(spec: AlgoSpec, opts: RunOptions) -> TrainConfig:
@@ -289,7 +307,7 @@ def run_experiment(domain: DomainSpec, algo: str, opts: RunOptions) -> tuple[Pat
         check_domain_env(domain, algo, opts.backend)
     run_dir = Path(opts.resume).parent if opts.resume else make_run_dir(opts.out, domain.name, algo)
     with RunLock(run_dir):  # one writer per folder, before anything in it changes
-        return _run_locked(domain, algo, opts, spec, state, run_dir)
+        return _run_locked(domain, algo, opts, spec, state, run_dir)  # (settings applied once)
 
 
 def check_size(domain: DomainSpec, spec: AlgoSpec, opts: RunOptions) -> None:
@@ -316,7 +334,7 @@ def _run_locked(domain, algo, opts: RunOptions, spec: AlgoSpec, state, run_dir: 
         envs_per_learner=opts.envs_per_learner or spec.envs_per_learner,
         code=code_version(),
     )
-    logger, trainer = _start(domain, algo, opts, run_dir, hparams, state)
+    logger, trainer = _start(domain, algo, opts, spec, run_dir, hparams, state)
     start = time.perf_counter()
     try:
         result = trainer.train(run_dir=run_dir)
@@ -379,7 +397,9 @@ def _failed(err: Exception, trainer, logger, run_dir: Path, opts: RunOptions) ->
     return RunFailed(f"{reason} (at step {step}; {left})")
 
 
-def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: dict | None):
+def _start(
+    domain, algo, opts: RunOptions, spec: AlgoSpec, run_dir: Path, hparams: dict, state: dict | None
+):
     """The run's logger and trainer (restored from ``state`` when resuming).
 
     The trainer is built and restored before anything in the folder changes, so a checkpoint
@@ -389,12 +409,12 @@ def _start(domain, algo, opts: RunOptions, run_dir: Path, hparams: dict, state: 
     resumed_at = None if state is None else int(state["trainer"]["step"])
     logger = None
     try:
-        trainer = build_trainer(domain, algo, opts)
+        trainer = build_trainer(domain, algo, opts, spec=spec)
         if state is not None:
             trainer.load_state_dict(state["trainer"])
         hparams = {  # the learner's and the exploration's own settings, as built
             **hparams,
-            "settings": algo_spec(domain, algo, opts).settings(),  # every field, by name
+            "settings": spec.settings(),  # every field, by name
             "learner": settings_of(trainer.learner),
             "exploration": settings_of(trainer.exploration),
         }
@@ -471,8 +491,9 @@ def evaluate_run(run_dir: str | Path, episodes: int | None = None):
     if episodes is not None or not opts.eval_episodes:  # a run trained without evaluation
         opts.eval_episodes = episodes or DEFAULT_EVAL_EPISODES
     domain = registry.get(run["domain"])
-    check_size(domain, algo_spec(domain, run["algo"], opts), opts)
-    trainer = build_trainer(domain, run["algo"], opts)
+    spec = algo_spec(domain, run["algo"], opts)
+    check_size(domain, spec, opts)
+    trainer = build_trainer(domain, run["algo"], opts, spec=spec)
     load_learner(trainer, state)
     trainer.step = int(state["trainer"]["step"])
     if trainer.evaluator.continuing:  # continuing: greedy throughput per seed

@@ -19,7 +19,8 @@ from hrl_torch.learners import (
     RVIQLearner,
 )
 from hrl_torch.learners.three_part import three_part_targets
-from hrl_torch.modules.exploration import Constant, EpsilonGreedy
+from hrl_torch.modules.exploration import EpsilonGreedy
+from hrl_torch.modules.schedules import Constant
 from hrl_torch.modules.tables import TableBank
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer

@@ -6,8 +6,9 @@ import torch
 from agents.taxi import taxi_hierarchy
 from envs.taxi import TaxiEnv
 from hrl_torch.learners.neural_maxq import NeuralMaxQLearner
-from hrl_torch.modules.exploration import EpsilonGreedy, Linear
+from hrl_torch.modules.exploration import EpsilonGreedy
 from hrl_torch.modules.neural import StackedMLP, factored_features, one_hot_features
+from hrl_torch.modules.schedules import Linear
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.trainer import Trainer
 

@@ -5,7 +5,7 @@ import torch
 
 from agents.taxi import taxi_hierarchy
 from hrl_torch.learners import MaxQLearner, SMDPQLearner
-from hrl_torch.modules.exploration import VisitCount
+from hrl_torch.modules.schedules import VisitCount
 from hrl_torch.modules.tables import TableBank
 
 
