@@ -74,14 +74,10 @@ from hrl_torch.common.devices import constant_on
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners import (
-    HARLearner,
-    HDRLearner,
-    HHLearner,
     MaxQLearner,
-    RARLearner,
-    RVIQLearner,
 )
 from hrl_torch.modules.exploration import linear_epsilon
+from hrl_torch.runs.algorithms import Tasks
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig
 from hrl_torch.training.continuing import ThroughputEvaluator
@@ -236,17 +232,6 @@ HH_GAIN_PRIOR = (1.0, 20_000.0)
 _TRAIN = TrainConfig(steps=150_000, eval_every=5_000, eval_episodes=4, log_every=5_000)
 
 
-def _spec(make_graph, learner, description: str) -> AlgoSpec:
-    return AlgoSpec(
-        make_graph=make_graph,
-        learner=learner,
-        exploration=_EPSILON,
-        train=_TRAIN,
-        envs_per_learner=16,
-        description=description,
-    )
-
-
 DOMAIN = DomainSpec(
     name="small-agv",
     description="small AGV scheduling task (Figure 4.2), continuing",
@@ -256,36 +241,34 @@ DOMAIN = DomainSpec(
         "hierarchically optimal 16,667": 10_000 * 20 / 12,
         "recursively optimal 10,500": 10_500.0,
     },
-    algos={
-        "har": _spec(
-            small_agv_hierarchy,
-            Make(HARLearner, alpha=0.2, gain_prior=HAR_GAIN_PRIOR),
-            "hierarchically optimal average reward RL (Algorithm 1)",
-        ),
-        "hdr": _spec(
-            small_agv_hierarchy,
-            Make(HDRLearner, alpha=0.2, gamma=GAMMA),
-            f"hierarchically optimal discounted RL (MAXQ-Q + CE, gamma {GAMMA})",
-        ),
-        "rar": _spec(
-            small_agv_hierarchy,
-            Make(RARLearner, alpha=0.2, gain_prior=RAR_GAIN_PRIOR),
-            "recursively optimal average reward RL (Algorithm 2)",
-        ),
-        "maxq-q": _spec(
-            small_agv_hierarchy,
-            Make(MaxQLearner, alpha=0.2, gamma=GAMMA),
-            f"MAXQ-Q (Dietterich 2000), gamma {GAMMA}",
-        ),
-        "hh": _spec(
-            small_agv_hierarchy,
-            Make(HHLearner, gain_prior=HH_GAIN_PRIOR),
-            "HH-learning (Seri and Tadepalli 2002), model-based",
-        ),
-        "rvi-q": _spec(
-            flat_graph,
-            Make(RVIQLearner, alpha=0.2),
-            "flat RVI Q-learning over the 78 states (not in Figure 4.3)",
+    tasks=Tasks(
+        graphs={"hierarchy": small_agv_hierarchy, "flat": flat_graph},
+        offers=frozenset({"tabular", "single-agent", "continuing"}),
+        exploration=_EPSILON,
+        train=_TRAIN,
+        envs_per_learner=16,
+        per_algorithm={  # (HH-learning has no step size: alpha is set per algorithm)
+            "har": {"learner": {"alpha": 0.2, "gain_prior": HAR_GAIN_PRIOR}},
+            "rar": {"learner": {"alpha": 0.2, "gain_prior": RAR_GAIN_PRIOR}},
+            "hdr": {
+                "learner": {"alpha": 0.2, "gamma": GAMMA},
+                "description": f"hierarchically optimal discounted RL (MAXQ-Q + CE, gamma {GAMMA})",
+            },
+            "hh": {"learner": {"gain_prior": HH_GAIN_PRIOR}},
+            "rvi-q": {
+                "learner": {"alpha": 0.2},
+                "description": "flat RVI Q-learning over the 78 states (not in Figure 4.3)",
+            },
+        },
+    ),
+    algos={  # (discounted MAXQ-Q on a continuing task: not the episodic family)
+        "maxq-q": AlgoSpec(
+            make_graph=small_agv_hierarchy,
+            learner=Make(MaxQLearner, alpha=0.2, gamma=GAMMA),
+            exploration=_EPSILON,
+            train=_TRAIN,
+            envs_per_learner=16,
+            description=f"MAXQ-Q (Dietterich 2000), gamma {GAMMA}",
         ),
     },
 )

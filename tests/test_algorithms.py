@@ -105,3 +105,18 @@ def test_a_plugin_learner_trains_from_the_cli_on_taxi_and_four_rooms(tmp_path, m
         (run,) = (tmp_path / "runs").glob(f"{domain}__expected-sarsa__*")
         summary = json.loads((run / "summary.json").read_text())
         assert summary["algo"] == "expected-sarsa"
+
+
+def test_the_average_reward_domains_offer_the_continuing_families_and_a_later_one(monkeypatch):
+    from hrl_torch.learners import RVIQLearner
+
+    small, agv = registry.get("small-agv"), registry.get("agv")
+    assert {"har", "rar", "hdr", "hh", "rvi-q"} <= set(small.algos)
+    assert {"har", "rar", "hdr", "rvi-q"} <= set(agv.algos) and "hh" not in agv.algos  # without
+    assert "maxq-q" in small.algos and "maxq-q" in small.own_algos  # the domain's own, discounted
+    monkeypatch.setattr(algorithms, "_ALGORITHMS", dict(algorithms.algorithms()))
+    algorithms.register_algorithm(
+        Algorithm("rvi-q-2", RVIQLearner, "flat", frozenset({"tabular", "continuing"}))
+    )
+    for domain in (small, agv, registry.get("agv-ct")):
+        assert "rvi-q-2" in domain.with_registered_algorithms().algos, domain.name

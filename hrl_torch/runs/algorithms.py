@@ -72,6 +72,8 @@ class Tasks:
             settings under ``"learner"``, any other ``AlgoSpec`` field by its name
             (``train``, ``executor``, ``description``, ...).
         only: if given, the algorithm names offered (others are left out even if compatible).
+        without: compatible algorithms this domain leaves out (say why beside it: e.g. a
+            model-based learner whose model would not fit); a plugin's still reach it.
     """
 
     graphs: Mapping[str, Callable]
@@ -82,6 +84,7 @@ class Tasks:
     learner: Mapping[str, object] = field(default_factory=dict)
     per_algorithm: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
     only: frozenset[str] | None = None
+    without: frozenset[str] = frozenset()
 
     def runs(self, algorithm: Algorithm) -> bool:
         """Whether ``algorithm`` can run on this domain."""
@@ -89,6 +92,7 @@ class Tasks:
             set(algorithm.needs) <= set(self.offers)
             and algorithm.graph in self.graphs
             and (self.only is None or algorithm.name in self.only)
+            and algorithm.name not in self.without
         )
 
 
