@@ -107,16 +107,26 @@ class NeuralMaxQLearner(TabularLearner):
             raise ValueError(f"updates must be >= 1, got {updates}")
         self.updates = int(updates)
         self.internal = bool(graph.internal_nodes)
-        lay, plan = self.layout, self.plan
-        order = plan.order.tolist()
-        names = [graph.names[t] for t in order]
-        n_states = [int(lay.table_n_states[t]) for t in order]
-        radices = dict(radices or {})
-        init_nodes = dict(init_nodes or {})
+        names = [graph.names[t] for t in self.plan.order.tolist()]
+        radices, init_nodes = dict(radices or {}), dict(init_nodes or {})
         for what, given in (("radices", radices), ("tables", tables), ("init_nodes", init_nodes)):
             unknown = sorted(set(given) - set(names))
             if unknown:
                 raise GraphError(f"{what}: {unknown} are not subtasks of the graph")
+        n_inputs = self._encode_states(names, encoding, radices)
+        self.width = self.layout.max_children
+        n_out = self.width * (2 if self.internal else 1)
+        self.completion = StackedMLP(
+            n_learners, len(names), n_inputs, n_out, hidden, init, init_seed
+        )
+        self.optimizer = StackedAdam(dict(self.completion.named_parameters()), lr)
+        self._make_heads(graph, names, tables, init, init_nodes)
+        self._per_state: dict = {}
+
+    def _encode_states(self, names: list[str], encoding: str, radices: dict) -> int:
+        """Every planned node's abstract states as unit rows (``units``); the input width."""
+        lay, plan = self.layout, self.plan
+        n_states = [int(lay.table_n_states[t]) for t in plan.order.tolist()]
         if encoding == "onehot":
             units = one_hot_features(n_states)
         else:
@@ -124,19 +134,20 @@ class NeuralMaxQLearner(TabularLearner):
         self.n_state_rows = units.shape[1]  # S: rows of every node's unit table
         self.register_buffer("units", units.reshape(-1, units.shape[-1]), persistent=False)
         pos = torch.zeros(lay.n_tables, dtype=torch.long)
-        pos[plan.order] = torch.arange(len(order))
+        pos[plan.order] = torch.arange(len(names))
         self.register_buffer("table_pos", pos, persistent=False)
-        n_inputs = int(units.max()) + 1
-        self.width = lay.max_children
-        n_out = self.width * (2 if self.internal else 1)
-        self.completion = StackedMLP(
-            n_learners, len(order), n_inputs, n_out, hidden, init, init_seed
-        )
-        self.optimizer = StackedAdam(dict(self.completion.named_parameters()), lr)
+        return int(units.max()) + 1
+
+    def _make_heads(
+        self, graph: TaskGraph, names: list[str], tables, init: float, init_nodes: dict
+    ) -> None:
+        """A neural head per planned node, a table head for those in ``tables``; their starts."""
+        lay = self.layout
         self.V = self.primitive_bank()
         tabular = torch.tensor([n in tables for n in names], dtype=torch.bool)
         self.register_buffer("tabular", tabular, persistent=False)  # [Tc], plan order
-        self.register_buffer("table_tabular", tabular[pos] & ~lay.table_is_primitive, False)
+        on_tables = tabular[self.table_pos] & ~lay.table_is_primitive
+        self.register_buffer("table_tabular", on_tables, persistent=False)
         banks = {"V": self.V}
         self.C = self.C_int = None
         if tables:  # (a block per subtask, read and written only for those in ``tables``)
@@ -154,7 +165,6 @@ class NeuralMaxQLearner(TabularLearner):
                 elif name in init_nodes:
                     for key in ("C", "C_int") if self.internal else ("C",):
                         self.heads[name][key].fill_(float(init_nodes[name]))
-        self._per_state: dict = {}
 
     # ------------------------------------------------------------------ values
     def _context(self, ctx: StepContext):
