@@ -193,10 +193,16 @@ def build_trainer(
         collector=opts.collector,
         agent_factory=agents,
     )
-    trainer.run_config = {
+    trainer.run_config = _run_config(domain, algo, opts, config, schedule_steps, n_envs)
+    return trainer
+
+
+def _run_config(domain, algo, opts, config, schedule_steps: int, n_envs: int) -> dict:
+    """What a checkpoint records of its run (``recorded_run`` reads it back)."""
+    return {
         "domain": domain.name,
         "algo": algo,
-        "seeds": seeds,
+        "seeds": list(opts.seeds),
         "backend": opts.backend,
         "envs_per_learner": n_envs,
         "steps": config.steps,
@@ -211,7 +217,6 @@ def build_trainer(
         "version": __version__,
         "code": code_version(),
     }
-    return trainer
 
 
 def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:
