@@ -330,6 +330,16 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def logger_names(given: list[str] | None) -> list[str]:
+    """``--logger`` values (repeated or comma lists) as names; none given: TensorBoard."""
+    if not given:
+        return ["tensorboard"]
+    names = [n.strip() for value in given for n in value.split(",") if n.strip()]
+    if not names:
+        raise UserError("--logger needs a name: tensorboard, csv, wandb or mlflow")
+    return names
+
+
 def _train_options(args: argparse.Namespace):
     """``(domain, algo, RunOptions)`` of ``hrl-torch train``, every input checked.
 
@@ -341,9 +351,11 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch.training.steps import single_agent_only
 
     given, settings = _given_options(args)
+    loggers = logger_names(args.logger)
     display = {
         "progress": not args.no_progress,
-        "tensorboard": not args.no_tensorboard,
+        "tensorboard": "tensorboard" in loggers and not args.no_tensorboard,
+        "trackers": tuple(n for n in loggers if n != "tensorboard"),
         "check_leaf_rewards": args.check_leaf_rewards,
         "cuda_graph": not args.no_cuda_graph,
         "compile_step": args.compile_step,

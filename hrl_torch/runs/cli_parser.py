@@ -156,6 +156,15 @@ def _add_switches(train: argparse.ArgumentParser) -> None:
     train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
+    train.add_argument(
+        "--logger",
+        action="append",
+        default=None,
+        metavar="NAMES",
+        help="where scalars go besides progress.csv: tensorboard (default), csv, wandb (offline), "
+        "mlflow (SQLite); a comma list or repeated, all inside the run folder (wandb and mlflow: "
+        "pip install 'hrl-torch[track]')",
+    )
 
 
 def _add_set(train: argparse.ArgumentParser) -> None:
