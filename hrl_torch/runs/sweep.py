@@ -9,7 +9,8 @@ every seed at once through ``run_experiment``. Ray is an optional extra
 ``{out}/{name}/``::
 
     sweep.json            the request (domain, algorithm, grid, seeds, steps, metric)
-    sweep.csv, sweep.md   configurations ranked by the mean over seeds, with a 95% t-interval
+    sweep.csv, sweep.md   configurations ranked by the IQM over seeds, with its 95% bootstrap
+                          interval (rliable's, ``common.stats``) and the mean
     <label>/<run folder>  one ordinary run folder per trial (label: ``alpha=0.1_init=-20``), so
                           ``tensorboard --logdir {out}/{name}`` groups the trials
     tune/                 Ray Tune's experiment state, restored by ``resume=True``
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from hrl_torch.common.config import parse_value, split_name
+from hrl_torch.common.stats import bootstrap_interval
 from hrl_torch.runs.domain import TRAIN_KEYS, AlgoSpec, DomainSpec, setting_names, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.runs.experiment import RunOptions, check_choice, check_domain_env, run_experiment
 from hrl_torch.training.runlog import mean_ci95
@@ -388,7 +390,7 @@ def _finished_run(trial_dir: Path) -> tuple[Path, dict] | None:
 
 # ---------------------------------------------------------------------- the table
 def rank(configs: list[dict], results, metric: str) -> list[dict]:
-    """One row per configuration: the finished ones first, best mean over seeds first.
+    """One row per configuration: the finished ones first, best IQM over seeds first.
 
     The statistics come from each trial's ``summary.json``; ``status`` is ``finished``
     (ranked), ``error`` (``error`` says why) or ``unfinished`` (an interrupted sweep: resume
@@ -405,25 +407,48 @@ def rank(configs: list[dict], results, metric: str) -> list[dict]:
         elif run_dir is not None:
             row.update(status="finished", **_statistics(Path(run_dir), metric))
         rows.append(row)
-    finished = [r for r in rows if r["status"] == "finished"]
-    finished.sort(
-        key=lambda r: (math.isnan(r["mean"]), -r["mean"] if r["mean"] == r["mean"] else 0)
-    )
-    for k, row in enumerate(finished):
-        row["rank"] = k + 1
+    finished = assign_ranks([r for r in rows if r["status"] == "finished"])
     return finished + [r for r in rows if r["status"] != "finished"]
 
 
+def seed_statistics(values: np.ndarray) -> dict:
+    """IQM over seeds with its 95% bootstrap interval (``common.stats``: rliable's), and the mean.
+
+    ``ci95`` is the half-width of the mean's Student-t interval (the 0.2 tables' statistic, kept
+    in the rows; NaN with one seed). Seeds without a value (NaN) are left out.
+    """
+    finite = values[np.isfinite(values)]
+    mean, half = (float(x[0]) for x in mean_ci95(values[:, None]))
+    row = {"iqm": math.nan, "iqm_low": math.nan, "iqm_high": math.nan}
+    if finite.size:
+        point, lo, hi = bootstrap_interval(finite[:, None])
+        row.update(iqm=float(point[0]), iqm_low=float(lo[0]), iqm_high=float(hi[0]))
+    n = int(finite.size)
+    return {**row, "mean": mean, "ci95": half if n > 1 else math.nan, "n_seeds": n}
+
+
+def assign_ranks(rows: list[dict]) -> list[dict]:
+    """``rows`` best IQM first (then best mean); equal IQM and mean share a rank (1, 1, 3).
+
+    Rows without a score come last, unranked by each other (they share the last rank).
+    """
+
+    def score(row):
+        return tuple(-row[k] if row[k] == row[k] else math.inf for k in ("iqm", "mean"))
+
+    rows = sorted(rows, key=score)  # stable: rows that tie keep the grid's order on the page
+    for k, row in enumerate(rows):
+        tied = k > 0 and score(row) == score(rows[k - 1])
+        row["rank"] = rows[k - 1]["rank"] if tied else k + 1
+    return rows
+
+
 def _statistics(run_dir: Path, metric: str) -> dict:
-    """Mean and 95% t-interval half-width over seeds of ``metric`` in a run's summary."""
+    """``seed_statistics`` of ``metric`` over the seeds of a run's summary."""
     summary = json.loads((run_dir / "summary.json").read_text())
     values = np.array([r[metric] for r in summary["per_seed"]], dtype=float)
-    mean, half = (float(x[0]) for x in mean_ci95(values[:, None]))
-    n = int(np.sum(~np.isnan(values)))
     return {
-        "mean": mean,
-        "ci95": half if n > 1 else math.nan,
-        "n_seeds": n,
+        **seed_statistics(values),
         "per_seed": values.tolist(),
         "train_seconds": summary["train_seconds"],
         "run_dir": str(run_dir),
@@ -438,16 +463,17 @@ def _last_line(error) -> str:
 
 def write_table(rows: list[dict], keys: list[str], metric: str, sweep_dir: Path) -> None:
     """``sweep.csv`` (full precision) and ``sweep.md`` of ranked rows."""
-    head = ["rank", *keys, f"mean {metric}", "ci95 low", "ci95 high", "seeds", "train s", "run"]
+    head = ["rank", *keys, f"IQM {metric}", "IQM 95% low", "IQM 95% high", "mean"]
+    head += ["seeds", "train s", "run"]
     csv_rows, md_rows = [], []
     for row in rows:
         config = [row["config"][k] for k in keys]
         if row["status"] != "finished":
             why = row.get("error") or "unfinished (resume the sweep)"
-            csv_rows.append(["", *config, "", "", "", "", "", why])
-            md_rows.append(["-", *config, "", "", "", "", "", why])
+            csv_rows.append(["", *config, "", "", "", "", "", "", why])
+            md_rows.append(["-", *config, "", "", "", "", "", "", why])
             continue
-        stats = [row["mean"], row["mean"] - row["ci95"], row["mean"] + row["ci95"]]
+        stats = [row["iqm"], row["iqm_low"], row["iqm_high"], row["mean"]]
         run = os.path.relpath(row["run_dir"], sweep_dir)
         rest = [row["n_seeds"], row["train_seconds"], run]
         csv_rows.append([row["rank"], *config, *stats, *rest])
