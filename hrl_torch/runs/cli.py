@@ -136,6 +136,13 @@ def _run(args: argparse.Namespace) -> int:
         return _evaluate(args)
     if args.command == "check":
         return _check(args.domain, args.algo)
+    if args.command == "report":
+        from hrl_torch.runs.aggregate import run_report_command
+
+        try:
+            return run_report_command(args)
+        except ValueError as err:
+            raise UserError.of(err) from err
     if args.command == "sweep":
         from hrl_torch.runs.population_grid import run_population_command
         from hrl_torch.runs.sweep import run_sweep_command

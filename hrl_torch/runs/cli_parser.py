@@ -82,9 +82,43 @@ def parser(version: str) -> argparse.ArgumentParser:
     )
     check.add_argument("domain", help="a name `hrl-torch list` shows")
     check.add_argument("--algo", default=None, help="one algorithm (default: every one)")
-    for p in (top, train, evaluate, sweep, check):
+    report = _report_parser(sub)
+    for p in (top, train, evaluate, sweep, check, report):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return top
+
+
+def _report_parser(sub) -> argparse.ArgumentParser:
+    """``hrl-torch report``; ``hrl_torch.runs.aggregate.run_report_command`` runs it."""
+    report = sub.add_parser(
+        "report",
+        help="a table across runs and tasks: IQM, mean, optimality gap, 95%% bootstrap "
+        "intervals (rliable)",
+        epilog="Needs the track extra: pip install 'hrl-torch[track]'. docs/runs.md, Reports.",
+    )
+    report.add_argument(
+        "run_dirs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them"
+    )
+    report.add_argument(
+        "--metric", default=None, help="the per-seed key of summary.json (default: the final "
+        "greedy return, or throughput on continuing domains)",
+    )  # fmt: skip
+    report.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="DOMAIN=VALUE",
+        help="the score that counts as 1 across tasks (default: the run's threshold)",
+    )
+    report.add_argument(
+        "--out", default=None, help="folder for report.md and report.csv (default: report/ "
+        "beside the run folders)",
+    )  # fmt: skip
+    report.add_argument(
+        "--reps", type=int_at_least(100), default=2000, help="bootstrap replications (2000)"
+    )
+    report.add_argument("--seed", type=int_at_least(0), default=0, help="of the bootstrap (0)")
+    return report
 
 
 def _train_parser(sub) -> argparse.ArgumentParser:
