@@ -78,7 +78,8 @@ def four_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     for domain, algo in TASKS:
         opts = RunOptions(seeds=[0, 1, 2, 3], steps=3000, envs_per_learner=16, eval_every=0,
-                          eval_episodes=5, out=str(out), progress=False, tensorboard=False)  # fmt: skip
+                          eval_episodes=5, out=str(out), progress=False,
+                          tensorboard=False)  # fmt: skip
         run_experiment(registry.get(domain), algo, opts)
     return out
 
@@ -113,7 +114,8 @@ def test_report_prints_rliable_s_iqm_and_intervals_on_two_domains_x_two_algorith
         refs[summary["domain"]] = summary["threshold"]
     assert sorted(scores) == sorted(TASKS) and len({len(np.unique(s)) for s in scores.values()}) > 1
     for (domain, algo), values in scores.items():
-        points, ci = rliable_estimates(values[:, None], [metrics.aggregate_iqm, metrics.aggregate_mean])
+        funcs = [metrics.aggregate_iqm, metrics.aggregate_mean]
+        points, ci = rliable_estimates(values[:, None], funcs)
         for k, stat in enumerate(("IQM", "mean")):
             row = rows[("task", domain, algo, stat)]
             got = [float(row[c]) for c in ("value", "low", "high")]

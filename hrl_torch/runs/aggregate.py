@@ -10,8 +10,9 @@ The score of a seed is its final greedy evaluation in the run's ``summary.json``
   domain's reference (``--reference DOMAIN=VALUE``, else the run's ``threshold``):
   ``1 + (score - reference) / |reference|``, which is ``score / reference`` for a positive one
   and 1 at the reference; then the IQM, the mean and the optimality gap
-  (``1 - mean(min(score, 1))``: how far below the reference), each with its interval. rliable needs as many runs of every task: the first ``n`` seeds of each are
-  used, ``n`` the fewest, and the table says so.
+  (``1 - mean(min(score, 1))``: how far below the reference), each with its interval.
+  rliable needs as many runs of every task: the first ``n`` seeds of each are used, ``n`` the
+  fewest, and the table says so.
 
 Every statistic is ``rliable.library.get_interval_estimates`` (percentile method, 2,000
 replications, ``np.random.seed(seed)`` first; NumPy's global generator is restored after) with
