@@ -171,3 +171,17 @@ def test_the_wandb_offline_run_folder_holds_the_metrics_and_config(tmp_path):
     assert main(["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "600",
                  "--no-progress", "--logger", "wandb"]) == 0  # fmt: skip
     assert len(list((run_dir / "wandb").glob("offline-run-*"))) == 2
+
+
+def test_an_in_process_sweep_s_trials_log_to_the_trackers(tmp_path):
+    from hrl_torch.runs.sweep import run_sweep
+
+    grid = {"learner.alpha": [0.25, 0.5]}
+    rows = run_sweep("taxi", "maxq-q", grid, 1, out=tmp_path, steps=256, in_process=True,
+                     loggers=["csv"])  # fmt: skip
+    assert [r["status"] for r in rows] == ["finished"] * 2
+    for row in rows:
+        run_dir = Path(row["run_dir"])
+        assert (run_dir / "csv" / "scalars").is_dir() and not (run_dir / "tb").exists()
+    assert main(["sweep", "taxi", "--algo", "maxq-q", "--grid", "learner.alpha=0.1", "--population",
+                 "--logger", "csv", "--out", str(tmp_path / "p")]) == 2  # fmt: skip

@@ -337,16 +337,6 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def logger_names(given: list[str] | None) -> list[str]:
-    """``--logger`` values (repeated or comma lists) as names; none given: TensorBoard."""
-    if not given:
-        return ["tensorboard"]
-    names = [n.strip() for value in given for n in value.split(",") if n.strip()]
-    if not names:
-        raise UserError("--logger needs a name: tensorboard, csv, wandb or mlflow")
-    return names
-
-
 def _train_options(args: argparse.Namespace):
     """``(domain, algo, RunOptions)`` of ``hrl-torch train``, every input checked.
 
@@ -355,10 +345,14 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch.common.checkpoint import CheckpointError, load_checkpoint
     from hrl_torch.runs import registry
     from hrl_torch.runs.experiment import RunOptions, check_choice
+    from hrl_torch.runs.sweep import logger_names
     from hrl_torch.training.steps import single_agent_only
 
     given, settings = _given_options(args)
-    loggers = logger_names(args.logger)
+    try:
+        loggers = logger_names(args.logger)
+    except ValueError as err:
+        raise UserError.of(err) from err
     display = {
         "progress": not args.no_progress,
         "tensorboard": "tensorboard" in loggers and not args.no_tensorboard,

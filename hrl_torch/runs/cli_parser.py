@@ -256,4 +256,12 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "--device", type=device, default="cpu", help="with --population: cpu (default), cuda, ..."
     )
+    p.add_argument(
+        "--logger",
+        action="append",
+        default=None,
+        metavar="NAMES",
+        help="what each trial's run logs to, as train --logger (default: tensorboard; not with "
+        "--population)",
+    )
     return p

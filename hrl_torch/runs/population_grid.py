@@ -278,6 +278,8 @@ def run_population_command(args) -> int:
             raise ValueError(f"{flag} is for Ray sweeps; a --population sweep is one process")
     if args.in_process:
         raise ValueError("--in-process runs the trials one by one; --population runs them as one")
+    if getattr(args, "logger", None):
+        raise ValueError("--logger is for Ray and --in-process sweeps (a population logs no run)")
     name = args.name or f"{args.domain}__{args.algo}__population"
     run_population_grid(
         args.domain,

@@ -42,6 +42,7 @@ from hrl_torch.common.stats import bootstrap_interval
 from hrl_torch.runs.domain import TRAIN_KEYS, AlgoSpec, DomainSpec, setting_names, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.runs.experiment import RunOptions, check_choice, check_domain_env, run_experiment
 from hrl_torch.training.runlog import mean_ci95
+from hrl_torch.training.trackers import check_trackers
 
 INSTALL_HINT = 'Ray is not installed: pip install -e ".[sweep]"'
 
@@ -125,6 +126,7 @@ def run_sweep(
     metric: str | None = None,
     name: str | None = None,
     in_process: bool = False,
+    loggers: Sequence[str] = ("tensorboard",),
 ) -> list[dict]:
     """Run every configuration of ``grid`` as one Ray Tune trial (or here, in turn); rank them.
 
@@ -146,6 +148,8 @@ def run_sweep(
         in_process: no Ray: the trials run one after another in this process, into the same
             folders (resume reuses the finished ones; a signal stops the sweep, the trials
             left are ``unfinished``).
+        loggers: what each trial's run logs to, as ``train --logger``: ``tensorboard``,
+            ``csv``, ``wandb``, ``mlflow`` (``hrl_torch.training.trackers``), inside its folder.
 
     Returns:
         The rows of ``rank`` (also written to ``sweep.csv`` and ``sweep.md``): per
@@ -161,25 +165,31 @@ def run_sweep(
     domain, seeds, metric, request, configs = _checked_request(
         domain_name, algo, grid, seeds, steps, metric
     )
+    logs = {"tensorboard": "tensorboard" in loggers}
+    logs["trackers"] = check_trackers([n for n in loggers if n != "tensorboard"])
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
     if in_process:
-        results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir)
+        results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir, logs)
     else:
-        results = _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address)
+        run = (seeds, steps, metric, sweep_dir, logs)
+        results = _fit_on_ray(domain, algo, grid, run, resume, address)
     rows = rank(configs, results, metric)
     write_table(rows, list(grid), metric, sweep_dir)
     return rows
 
 
-def _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address):
-    """Tune's results, on a local Ray started here (and stopped) or the cluster at ``address``."""
+def _fit_on_ray(domain, algo, grid, run: tuple, resume, address):
+    """Tune's results, on a local Ray started here (and stopped) or the cluster at ``address``.
+
+    ``run``: ``(seeds, steps, metric, sweep_dir, logs)`` of every trial.
+    """
     ray, tune = _import_ray()
     started = not ray.is_initialized()
     if started:
         _start_ray(ray, address, _worker_path(domain))
     try:
-        return _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir, resume)
+        return _fit(tune, domain, algo, grid, *run, resume)
     finally:
         if started:
             ray.shutdown()
@@ -265,13 +275,14 @@ def _start_ray(ray, address: str | None, pythonpath: str) -> None:
     )
 
 
-def _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir: Path, resume: bool):
+def _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir: Path, logs, resume: bool):
     """Tune's results of the sweep (restored when ``resume`` and Tune's folder exists)."""
     from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
 
     trainable = tune.with_parameters(
-        _trial, domain=domain, algo=algo, seeds=seeds, steps=steps, metric=metric, root=sweep_dir
-    )
+        _trial, domain=domain, algo=algo, seeds=seeds, steps=steps, metric=metric,
+        root=sweep_dir, logs=logs,
+    )  # fmt: skip
     path = sweep_dir / "tune"
     if resume and tune.Tuner.can_restore(str(path)):
         tuner = tune.Tuner.restore(
@@ -313,11 +324,11 @@ def _trial_dirname(trial) -> str:
     return label(trial.config)
 
 
-def _trial(config: dict, domain, algo, seeds, steps, metric, root) -> None:
+def _trial(config: dict, domain, algo, seeds, steps, metric, root, logs=None) -> None:
     """One trial in a Ray worker: ``trial_report``, reported to Tune."""
     from ray import tune
 
-    report = trial_report(config, domain, algo, seeds, steps, metric, root)
+    report = trial_report(config, domain, algo, seeds, steps, metric, root, logs)
     report.pop("status")
     tune.report(report)
 
@@ -331,12 +342,12 @@ class TrialResult:
     error: Exception | None = None
 
 
-def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path):
+def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path, logs=None):
     """Every configuration's trial in turn, here; an interrupted trial ends the sweep."""
     results = []
     for config in configs:
         try:
-            report = trial_report(config, domain, algo, seeds, steps, metric, sweep_dir)
+            report = trial_report(config, domain, algo, seeds, steps, metric, sweep_dir, logs)
         except Exception as err:  # recorded in its row, as Tune records an errored trial
             results.append(TrialResult(config, {}, err))
             continue
@@ -346,8 +357,10 @@ def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path
     return results
 
 
-def trial_report(config: dict, domain, algo, seeds, steps, metric, root) -> dict:
+def trial_report(config: dict, domain, algo, seeds, steps, metric, root, logs=None) -> dict:
     """One trial: a population run into ``root/<label>/``; its metric's mean and per seed.
+
+    ``logs``: the run's ``tensorboard`` and ``trackers`` options (``None``: TensorBoard only).
 
     A run left unfinished by an earlier attempt of this trial is removed; a finished one is
     reported again rather than rerun. The settings reach the run as ``RunOptions.settings``
@@ -364,6 +377,7 @@ def trial_report(config: dict, domain, algo, seeds, steps, metric, root) -> dict
             progress=False,
             check_env=False,
             settings=dict(config),
+            **(logs or {}),
         )
         run_dir, summary = run_experiment(domain, algo, opts)
     else:
@@ -503,6 +517,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         resume=args.resume,
         name=args.name,
         in_process=args.in_process,
+        loggers=logger_names(args.logger),
     )
     sweep_dir = Path(args.out) / (args.name or f"{args.domain}__{args.algo}__sweep")
     print((sweep_dir / "sweep.md").read_text(), end="")
@@ -512,3 +527,11 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         print("hrl-torch: sweep interrupted; continue it with --resume", file=sys.stderr)
         return 130
     return 1 if "error" in status else 0
+
+
+def logger_names(given: list[str] | None) -> list[str]:
+    """``--logger`` values (repeated or comma lists) as names; none given: TensorBoard."""
+    names = [n.strip() for value in given or [] for n in value.split(",") if n.strip()]
+    if given and not names:
+        raise ValueError("--logger needs a name: tensorboard, csv, wandb or mlflow")
+    return names or ["tensorboard"]
