@@ -10,7 +10,7 @@ export RL_LOGGING_LEVEL := WARNING
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[dev]"
+	$(BIN)/pip install -q -e ".[dev,track,mpe]"
 	# make the repository root (agents/, envs/, scripts/) importable in this venv only
 	$(BIN)/python -c "import site, pathlib; pathlib.Path(site.getsitepackages()[0], 'hrl_torch_repo.pth').write_text('$(CURDIR)\n')"
 	touch $(STAMP)

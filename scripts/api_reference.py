@@ -44,6 +44,10 @@ PUBLIC: dict[str, tuple[str, list[str] | None]] = {
         "PettingZoo out (a multi-agent domain as an AEC / parallel env)",
         ["MultiAgentAECEnv", "MultiAgentParallelEnv", "make_aec"],
     ),
+    "hrl_torch.env.pettingzoo_in": (
+        "PettingZoo in (an existing ParallelEnv / AECEnv as a multi-agent domain)",
+        ["PettingZooBatchedEnv"],
+    ),
     "hrl_torch.env.torchrl_env": ("TorchRL out", ["TorchRLEnv"]),
     "hrl_torch.env.torchrl_multiagent": ("TorchRL out, multi-agent", ["MultiAgentTorchRLEnv"]),
     "hrl_torch.execution.executor": (
@@ -102,6 +106,14 @@ PUBLIC: dict[str, tuple[str, list[str] | None]] = {
     "hrl_torch.runs.sweep": ("sweeps", ["parse_grid", "run_sweep"]),
     "hrl_torch.runs.report": ("comparisons of runs", ["compare_plot", "summary_row"]),
     "hrl_torch.runs.plots": ("curves and their statistics", ["iqm", "iqm_interval", "plot_curves"]),
+    "hrl_torch.common.stats": (
+        "the one estimator: IQM and rliable's stratified-bootstrap interval",
+        ["iqm", "bootstrap_interval", "aggregate_iqm", "aggregate_mean", "optimality_gap"],
+    ),
+    "hrl_torch.training.trackers": (
+        "CSV, W&B and MLflow trackers (train --logger)",
+        ["Trackers", "check_trackers"],
+    ),
 }
 
 

@@ -37,8 +37,15 @@ SMALLER = {
         "eval_episodes=50": "eval_episodes=5",
         "num_cycles=100": "num_cycles=20",
     },
+    "docs/existing-envs.md": {
+        "seeds, steps = [0, 1, 2, 3], 4_000": "seeds, steps = [0, 1], 200",
+        "reach_env(seeds, 8)": "reach_env(seeds, 4)",
+        "seeds, steps = [0, 1, 2, 3], 6_000": "seeds, steps = [0, 1], 100",
+        "eval_episodes=20": "eval_episodes=2",
+        "spread_env(seeds, 8)": "spread_env(seeds, 2)",
+    },
 }
-NEEDS = {"docs/sweeps.md": "ray"}  # an optional extra the page's blocks import
+NEEDS = {"docs/sweeps.md": "ray", "docs/existing-envs.md": "mpe2"}  # optional extras
 
 
 def blocks(page: str) -> list[str]:

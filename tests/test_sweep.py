@@ -228,7 +228,7 @@ def test_local_ray_sweep_ranks_its_trials_and_resumes(tmp_path, capsys):
     assert [r["rank"] for r in rows] == [1, 2]
     assert means == sorted(means, reverse=True)
     table = (sweep_dir / "sweep.csv").read_text().splitlines()
-    assert table[0].startswith("rank,alpha,mean final_eval_return,ci95 low,ci95 high")
+    assert table[0].startswith("rank,alpha,IQM final_eval_return,IQM 95% low,IQM 95% high,mean")
     assert [line.split(",")[1] for line in table[1:]] == [str(r["config"]["alpha"]) for r in rows]
 
 

@@ -136,6 +136,13 @@ def _run(args: argparse.Namespace) -> int:
         return _evaluate(args)
     if args.command == "check":
         return _check(args.domain, args.algo)
+    if args.command == "report":
+        from hrl_torch.runs.aggregate import run_report_command
+
+        try:
+            return run_report_command(args)
+        except ValueError as err:
+            raise UserError.of(err) from err
     if args.command == "sweep":
         from hrl_torch.runs.population_grid import run_population_command
         from hrl_torch.runs.sweep import run_sweep_command
@@ -342,12 +349,18 @@ def _train_options(args: argparse.Namespace):
     from hrl_torch.common.checkpoint import CheckpointError, load_checkpoint
     from hrl_torch.runs import registry
     from hrl_torch.runs.experiment import RunOptions, check_choice
+    from hrl_torch.runs.sweep import logger_names
     from hrl_torch.training.steps import single_agent_only
 
     given, _ = _given_options(args)
+    try:
+        loggers = logger_names(args.logger)
+    except ValueError as err:
+        raise UserError.of(err) from err
     display = {
         "progress": not args.no_progress,
-        "tensorboard": not args.no_tensorboard,
+        "tensorboard": "tensorboard" in loggers and not args.no_tensorboard,
+        "trackers": tuple(n for n in loggers if n != "tensorboard"),
         "check_leaf_rewards": args.check_leaf_rewards,
         "cuda_graph": not args.no_cuda_graph,
         "compile_step": args.compile_step,

@@ -82,9 +82,43 @@ def parser(version: str) -> argparse.ArgumentParser:
     )
     check.add_argument("domain", help="a name `hrl-torch list` shows")
     check.add_argument("--algo", default=None, help="one algorithm (default: every one)")
-    for p in (top, train, evaluate, sweep, check):
+    report = _report_parser(sub)
+    for p in (top, train, evaluate, sweep, check, report):
         p.add_argument("--debug", action="store_true", help="tracebacks for every error")
     return top
+
+
+def _report_parser(sub) -> argparse.ArgumentParser:
+    """``hrl-torch report``; ``hrl_torch.runs.aggregate.run_report_command`` runs it."""
+    report = sub.add_parser(
+        "report",
+        help="a table across runs and tasks: IQM, mean, optimality gap, 95%% bootstrap "
+        "intervals (rliable)",
+        epilog="Needs the track extra: pip install 'hrl-torch[track]'. docs/runs.md, Reports.",
+    )
+    report.add_argument(
+        "run_dirs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them"
+    )
+    report.add_argument(
+        "--metric", default=None, help="the per-seed key of summary.json (default: the final "
+        "greedy return, or throughput on continuing domains)",
+    )  # fmt: skip
+    report.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="DOMAIN=VALUE",
+        help="the score that counts as 1 across tasks (default: the run's threshold)",
+    )
+    report.add_argument(
+        "--out", default=None, help="folder for report.md and report.csv (default: report/ "
+        "beside the run folders)",
+    )  # fmt: skip
+    report.add_argument(
+        "--reps", type=int_at_least(100), default=2000, help="bootstrap replications (2000)"
+    )
+    report.add_argument("--seed", type=int_at_least(0), default=0, help="of the bootstrap (0)")
+    return report
 
 
 def _train_parser(sub) -> argparse.ArgumentParser:
@@ -156,6 +190,15 @@ def _add_switches(train: argparse.ArgumentParser) -> None:
     train.add_argument(
         "--no-tensorboard", action="store_true", help="write no TensorBoard event files"
     )
+    train.add_argument(
+        "--logger",
+        action="append",
+        default=None,
+        metavar="NAMES",
+        help="where scalars go besides progress.csv: tensorboard (default), csv, wandb (offline), "
+        "mlflow (SQLite); a comma list or repeated, all inside the run folder (wandb and mlflow: "
+        "pip install 'hrl-torch[track]')",
+    )
 
 
 def _add_set(train: argparse.ArgumentParser) -> None:
@@ -212,5 +255,13 @@ def add_sweep_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--device", type=device, default="cpu", help="with --population: cpu (default), cuda, ..."
+    )
+    p.add_argument(
+        "--logger",
+        action="append",
+        default=None,
+        metavar="NAMES",
+        help="what each trial's run logs to, as train --logger (default: tensorboard; not with "
+        "--population)",
     )
     return p

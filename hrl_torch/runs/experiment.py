@@ -42,6 +42,7 @@ from hrl_torch.runs.runlock import RunLock
 from hrl_torch.runs.sizes import MAX_ROWS, check_rows, check_run_size  # noqa: F401 (MAX_ROWS re-exported)
 from hrl_torch.training.runfolder import check_run_folder
 from hrl_torch.training.runlog import RunLogger, code_version, hparams_of, make_run_dir, settings_of
+from hrl_torch.training.trackers import check_trackers
 from hrl_torch.training.trainer import TrainConfig, Trainer  # noqa: F401 (re-exported)
 
 
@@ -59,6 +60,9 @@ class RunOptions:
         resume: checkpoint to continue from.
         progress: show a progress bar.
         tensorboard: write TensorBoard events.
+        trackers: other trackers, inside the run folder: ``"csv"``, ``"wandb"`` (offline),
+            ``"mlflow"`` (a SQLite store) (``hrl_torch.training.trackers``; W&B and MLflow need
+            ``pip install 'hrl-torch[track]'``).
         device: torch device of envs, tables, Task-Stacks and random numbers.
         collector: train from a TorchRL ``Collector``'s frames (``hrl_torch.training.collector``).
         schedule_steps: the budget the exploration schedules are defined over (``None``: the
@@ -97,9 +101,11 @@ class RunOptions:
     settings: dict = field(default_factory=dict)
     cuda_graph: bool = True
     compile_step: bool = False
+    trackers: Sequence[str] = ()
 
     def __post_init__(self) -> None:
         self.seeds = check_seeds(self.seeds)
+        self.trackers = check_trackers(self.trackers)
         at_least = {"envs_per_learner": 1, "steps": 1, "schedule_steps": 1, "eval_every": 0}
         at_least |= {"eval_episodes": 0, "checkpoint_every": 0}
         for name, low in at_least.items():
@@ -424,7 +430,12 @@ def _start(
             "exploration": settings_of(trainer.exploration),
         }
         logger = RunLogger(
-            run_dir, opts.seeds, hparams, tensorboard=opts.tensorboard, resumed_at=resumed_at
+            run_dir,
+            opts.seeds,
+            hparams,
+            tensorboard=opts.tensorboard,
+            resumed_at=resumed_at,
+            trackers=opts.trackers,
         )
         trainer.logger = logger
     except BaseException:

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-BOOTSTRAP_SAMPLES = 2_000
+from hrl_torch.common import stats
+
+BOOTSTRAP_SAMPLES = stats.REPS
 LABELS = {
     "charts/eval_return": "greedy return per episode",
     "charts/episode_return": "training return per episode (exploring)",
@@ -41,10 +43,7 @@ def axis_label(metric: str, unit: str | None = None) -> str:
 
 def iqm(values: np.ndarray, axis: int = 0) -> np.ndarray:
     """Interquartile mean along ``axis`` (``scipy.stats.trim_mean(values, 0.25)``), NaN-free."""
-    n = values.shape[axis]
-    cut = int(0.25 * n)
-    ordered = np.sort(values, axis=axis)
-    return np.take(ordered, range(cut, n - cut), axis=axis).mean(axis=axis)
+    return stats.iqm(values, axis)
 
 
 def iqm_interval(
@@ -52,18 +51,19 @@ def iqm_interval(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per column of ``matrix [seeds, points]``: IQM and its 95% bootstrap interval (lo, hi).
 
-    Seeds missing a point (NaN), or whose value there is infinite (a return that overflowed;
-    summary.json names it), are left out of that point; a point no seed has is NaN.
+    The interval is rliable's (``hrl_torch.common.stats.bootstrap_interval``: the same numbers
+    as ``rliable.library.get_interval_estimates`` on that column's seeds after
+    ``np.random.seed(seed)``). Seeds missing a point (NaN), or whose value there is infinite
+    (a return that overflowed; summary.json names it), are left out of that point; a point no
+    seed has is NaN.
     """
-    rng = np.random.default_rng(seed)
     center, lo, hi = (np.full(matrix.shape[1], np.nan) for _ in range(3))
     for j in range(matrix.shape[1]):
         x = matrix[:, j][np.isfinite(matrix[:, j])]
         if x.size == 0:
             continue
-        resampled = x[rng.integers(0, x.size, (samples, x.size))]
-        center[j] = iqm(x)
-        lo[j], hi[j] = np.percentile(iqm(resampled, axis=1), [2.5, 97.5])
+        point, low, high = stats.bootstrap_interval(x[:, None], reps=samples, seed=seed)
+        center[j], lo[j], hi[j] = point[0], low[0], high[0]
     return center, lo, hi
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -33,8 +32,8 @@ import torch
 from hrl_torch.common.per_learner import is_per_learner
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec, with_overrides
 from hrl_torch.runs.experiment import RunOptions, build_trainer
-from hrl_torch.runs.sweep import write_table
-from hrl_torch.training.runlog import hparams_of, json_default, mean_ci95
+from hrl_torch.runs.sweep import assign_ranks, seed_statistics, write_table
+from hrl_torch.training.runlog import hparams_of, json_default
 
 #: the settings that may differ between the configurations of one population (undotted
 #: ``alpha`` / ``init``: the short form of ``learner.alpha`` / ``learner.init``)
@@ -204,32 +203,25 @@ def _request(domain_name, algo, grid, seeds, steps, metric):
 
 
 def _ranked(configs, seeds, per_learner, metric, train_seconds, sweep_dir) -> list[dict]:
-    """One finished row per configuration, the best mean over seeds first (``sweep.rank``)."""
+    """One finished row per configuration, the best IQM over seeds first (``sweep.rank``)."""
     s = len(seeds)
     if metric not in per_learner[0]:
         raise KeyError(f"no per-seed {metric!r}; there are {sorted(per_learner[0])}")
     rows = []
     for c, config in enumerate(configs):
         values = np.array([r[metric] for r in per_learner[c * s : (c + 1) * s]], dtype=float)
-        mean, half = (float(x[0]) for x in mean_ci95(values[:, None]))
-        n = int(np.sum(~np.isnan(values)))
         rows.append(
             {
                 "config": config,
                 "metric": metric,
                 "status": "finished",
-                "mean": mean,
-                "ci95": half if n > 1 else math.nan,
-                "n_seeds": n,
+                **seed_statistics(values),
                 "per_seed": values.tolist(),
                 "train_seconds": round(train_seconds, 3),
                 "run_dir": str(sweep_dir),
             }
         )
-    rows.sort(key=lambda r: (math.isnan(r["mean"]), -r["mean"] if r["mean"] == r["mean"] else 0))
-    for k, row in enumerate(rows):
-        row["rank"] = k + 1
-    return rows
+    return assign_ranks(rows)
 
 
 def population_settings(spec: AlgoSpec, values: dict, n_configs: int) -> tuple[dict, list]:
@@ -286,6 +278,8 @@ def run_population_command(args) -> int:
             raise ValueError(f"{flag} is for Ray sweeps; a --population sweep is one process")
     if args.in_process:
         raise ValueError("--in-process runs the trials one by one; --population runs them as one")
+    if getattr(args, "logger", None):
+        raise ValueError("--logger is for Ray and --in-process sweeps (a population logs no run)")
     name = args.name or f"{args.domain}__{args.algo}__population"
     run_population_grid(
         args.domain,

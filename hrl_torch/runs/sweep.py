@@ -9,7 +9,8 @@ every seed at once through ``run_experiment``. Ray is an optional extra
 ``{out}/{name}/``::
 
     sweep.json            the request (domain, algorithm, grid, seeds, steps, metric)
-    sweep.csv, sweep.md   configurations ranked by the mean over seeds, with a 95% t-interval
+    sweep.csv, sweep.md   configurations ranked by the IQM over seeds, with its 95% bootstrap
+                          interval (rliable's, ``common.stats``) and the mean
     <label>/<run folder>  one ordinary run folder per trial (label: ``alpha=0.1_init=-20``), so
                           ``tensorboard --logdir {out}/{name}`` groups the trials
     tune/                 Ray Tune's experiment state, restored by ``resume=True``
@@ -37,9 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from hrl_torch.common.config import parse_value, split_name
+from hrl_torch.common.stats import bootstrap_interval
 from hrl_torch.runs.domain import TRAIN_KEYS, AlgoSpec, DomainSpec, setting_names, with_overrides  # noqa: F401 (re-exported)
 from hrl_torch.runs.experiment import RunOptions, check_choice, check_domain_env, run_experiment
 from hrl_torch.training.runlog import mean_ci95
+from hrl_torch.training.trackers import check_trackers
 
 INSTALL_HINT = 'Ray is not installed: pip install -e ".[sweep]"'
 
@@ -123,6 +126,7 @@ def run_sweep(
     metric: str | None = None,
     name: str | None = None,
     in_process: bool = False,
+    loggers: Sequence[str] = ("tensorboard",),
 ) -> list[dict]:
     """Run every configuration of ``grid`` as one Ray Tune trial (or here, in turn); rank them.
 
@@ -144,6 +148,8 @@ def run_sweep(
         in_process: no Ray: the trials run one after another in this process, into the same
             folders (resume reuses the finished ones; a signal stops the sweep, the trials
             left are ``unfinished``).
+        loggers: what each trial's run logs to, as ``train --logger``: ``tensorboard``,
+            ``csv``, ``wandb``, ``mlflow`` (``hrl_torch.training.trackers``), inside its folder.
 
     Returns:
         The rows of ``rank`` (also written to ``sweep.csv`` and ``sweep.md``): per
@@ -159,25 +165,31 @@ def run_sweep(
     domain, seeds, metric, request, configs = _checked_request(
         domain_name, algo, grid, seeds, steps, metric
     )
+    logs = {"tensorboard": "tensorboard" in loggers}
+    logs["trackers"] = check_trackers([n for n in loggers if n != "tensorboard"])
     sweep_dir = Path(out).resolve() / (name or f"{domain_name}__{algo}__sweep")
     _check_folder(sweep_dir, request, resume)
     if in_process:
-        results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir)
+        results = _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir, logs)
     else:
-        results = _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address)
+        run = (seeds, steps, metric, sweep_dir, logs)
+        results = _fit_on_ray(domain, algo, grid, run, resume, address)
     rows = rank(configs, results, metric)
     write_table(rows, list(grid), metric, sweep_dir)
     return rows
 
 
-def _fit_on_ray(domain, algo, grid, seeds, steps, metric, sweep_dir, resume, address):
-    """Tune's results, on a local Ray started here (and stopped) or the cluster at ``address``."""
+def _fit_on_ray(domain, algo, grid, run: tuple, resume, address):
+    """Tune's results, on a local Ray started here (and stopped) or the cluster at ``address``.
+
+    ``run``: ``(seeds, steps, metric, sweep_dir, logs)`` of every trial.
+    """
     ray, tune = _import_ray()
     started = not ray.is_initialized()
     if started:
         _start_ray(ray, address, _worker_path(domain))
     try:
-        return _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir, resume)
+        return _fit(tune, domain, algo, grid, *run, resume)
     finally:
         if started:
             ray.shutdown()
@@ -263,13 +275,14 @@ def _start_ray(ray, address: str | None, pythonpath: str) -> None:
     )
 
 
-def _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir: Path, resume: bool):
+def _fit(tune, domain, algo, grid, seeds, steps, metric, sweep_dir: Path, logs, resume: bool):
     """Tune's results of the sweep (restored when ``resume`` and Tune's folder exists)."""
     from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
 
     trainable = tune.with_parameters(
-        _trial, domain=domain, algo=algo, seeds=seeds, steps=steps, metric=metric, root=sweep_dir
-    )
+        _trial, domain=domain, algo=algo, seeds=seeds, steps=steps, metric=metric,
+        root=sweep_dir, logs=logs,
+    )  # fmt: skip
     path = sweep_dir / "tune"
     if resume and tune.Tuner.can_restore(str(path)):
         tuner = tune.Tuner.restore(
@@ -311,11 +324,11 @@ def _trial_dirname(trial) -> str:
     return label(trial.config)
 
 
-def _trial(config: dict, domain, algo, seeds, steps, metric, root) -> None:
+def _trial(config: dict, domain, algo, seeds, steps, metric, root, logs=None) -> None:
     """One trial in a Ray worker: ``trial_report``, reported to Tune."""
     from ray import tune
 
-    report = trial_report(config, domain, algo, seeds, steps, metric, root)
+    report = trial_report(config, domain, algo, seeds, steps, metric, root, logs)
     report.pop("status")
     tune.report(report)
 
@@ -329,12 +342,12 @@ class TrialResult:
     error: Exception | None = None
 
 
-def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path):
+def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path, logs=None):
     """Every configuration's trial in turn, here; an interrupted trial ends the sweep."""
     results = []
     for config in configs:
         try:
-            report = trial_report(config, domain, algo, seeds, steps, metric, sweep_dir)
+            report = trial_report(config, domain, algo, seeds, steps, metric, sweep_dir, logs)
         except Exception as err:  # recorded in its row, as Tune records an errored trial
             results.append(TrialResult(config, {}, err))
             continue
@@ -344,8 +357,10 @@ def _fit_in_process(domain, algo, configs, seeds, steps, metric, sweep_dir: Path
     return results
 
 
-def trial_report(config: dict, domain, algo, seeds, steps, metric, root) -> dict:
+def trial_report(config: dict, domain, algo, seeds, steps, metric, root, logs=None) -> dict:
     """One trial: a population run into ``root/<label>/``; its metric's mean and per seed.
+
+    ``logs``: the run's ``tensorboard`` and ``trackers`` options (``None``: TensorBoard only).
 
     A run left unfinished by an earlier attempt of this trial is removed; a finished one is
     reported again rather than rerun. The settings reach the run as ``RunOptions.settings``
@@ -362,6 +377,7 @@ def trial_report(config: dict, domain, algo, seeds, steps, metric, root) -> dict
             progress=False,
             check_env=False,
             settings=dict(config),
+            **(logs or {}),
         )
         run_dir, summary = run_experiment(domain, algo, opts)
     else:
@@ -388,7 +404,7 @@ def _finished_run(trial_dir: Path) -> tuple[Path, dict] | None:
 
 # ---------------------------------------------------------------------- the table
 def rank(configs: list[dict], results, metric: str) -> list[dict]:
-    """One row per configuration: the finished ones first, best mean over seeds first.
+    """One row per configuration: the finished ones first, best IQM over seeds first.
 
     The statistics come from each trial's ``summary.json``; ``status`` is ``finished``
     (ranked), ``error`` (``error`` says why) or ``unfinished`` (an interrupted sweep: resume
@@ -405,25 +421,48 @@ def rank(configs: list[dict], results, metric: str) -> list[dict]:
         elif run_dir is not None:
             row.update(status="finished", **_statistics(Path(run_dir), metric))
         rows.append(row)
-    finished = [r for r in rows if r["status"] == "finished"]
-    finished.sort(
-        key=lambda r: (math.isnan(r["mean"]), -r["mean"] if r["mean"] == r["mean"] else 0)
-    )
-    for k, row in enumerate(finished):
-        row["rank"] = k + 1
+    finished = assign_ranks([r for r in rows if r["status"] == "finished"])
     return finished + [r for r in rows if r["status"] != "finished"]
 
 
+def seed_statistics(values: np.ndarray) -> dict:
+    """IQM over seeds with its 95% bootstrap interval (``common.stats``: rliable's), and the mean.
+
+    ``ci95`` is the half-width of the mean's Student-t interval (the 0.2 tables' statistic, kept
+    in the rows; NaN with one seed). Seeds without a value (NaN) are left out.
+    """
+    finite = values[np.isfinite(values)]
+    mean, half = (float(x[0]) for x in mean_ci95(values[:, None]))
+    row = {"iqm": math.nan, "iqm_low": math.nan, "iqm_high": math.nan}
+    if finite.size:
+        point, lo, hi = bootstrap_interval(finite[:, None])
+        row.update(iqm=float(point[0]), iqm_low=float(lo[0]), iqm_high=float(hi[0]))
+    n = int(finite.size)
+    return {**row, "mean": mean, "ci95": half if n > 1 else math.nan, "n_seeds": n}
+
+
+def assign_ranks(rows: list[dict]) -> list[dict]:
+    """``rows`` best IQM first (then best mean); equal IQM and mean share a rank (1, 1, 3).
+
+    Rows without a score come last, unranked by each other (they share the last rank).
+    """
+
+    def score(row):
+        return tuple(-row[k] if row[k] == row[k] else math.inf for k in ("iqm", "mean"))
+
+    rows = sorted(rows, key=score)  # stable: rows that tie keep the grid's order on the page
+    for k, row in enumerate(rows):
+        tied = k > 0 and score(row) == score(rows[k - 1])
+        row["rank"] = rows[k - 1]["rank"] if tied else k + 1
+    return rows
+
+
 def _statistics(run_dir: Path, metric: str) -> dict:
-    """Mean and 95% t-interval half-width over seeds of ``metric`` in a run's summary."""
+    """``seed_statistics`` of ``metric`` over the seeds of a run's summary."""
     summary = json.loads((run_dir / "summary.json").read_text())
     values = np.array([r[metric] for r in summary["per_seed"]], dtype=float)
-    mean, half = (float(x[0]) for x in mean_ci95(values[:, None]))
-    n = int(np.sum(~np.isnan(values)))
     return {
-        "mean": mean,
-        "ci95": half if n > 1 else math.nan,
-        "n_seeds": n,
+        **seed_statistics(values),
         "per_seed": values.tolist(),
         "train_seconds": summary["train_seconds"],
         "run_dir": str(run_dir),
@@ -438,16 +477,17 @@ def _last_line(error) -> str:
 
 def write_table(rows: list[dict], keys: list[str], metric: str, sweep_dir: Path) -> None:
     """``sweep.csv`` (full precision) and ``sweep.md`` of ranked rows."""
-    head = ["rank", *keys, f"mean {metric}", "ci95 low", "ci95 high", "seeds", "train s", "run"]
+    head = ["rank", *keys, f"IQM {metric}", "IQM 95% low", "IQM 95% high", "mean"]
+    head += ["seeds", "train s", "run"]
     csv_rows, md_rows = [], []
     for row in rows:
         config = [row["config"][k] for k in keys]
         if row["status"] != "finished":
             why = row.get("error") or "unfinished (resume the sweep)"
-            csv_rows.append(["", *config, "", "", "", "", "", why])
-            md_rows.append(["-", *config, "", "", "", "", "", why])
+            csv_rows.append(["", *config, "", "", "", "", "", "", why])
+            md_rows.append(["-", *config, "", "", "", "", "", "", why])
             continue
-        stats = [row["mean"], row["mean"] - row["ci95"], row["mean"] + row["ci95"]]
+        stats = [row["iqm"], row["iqm_low"], row["iqm_high"], row["mean"]]
         run = os.path.relpath(row["run_dir"], sweep_dir)
         rest = [row["n_seeds"], row["train_seconds"], run]
         csv_rows.append([row["rank"], *config, *stats, *rest])
@@ -477,6 +517,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         resume=args.resume,
         name=args.name,
         in_process=args.in_process,
+        loggers=logger_names(args.logger),
     )
     sweep_dir = Path(args.out) / (args.name or f"{args.domain}__{args.algo}__sweep")
     print((sweep_dir / "sweep.md").read_text(), end="")
@@ -486,3 +527,11 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         print("hrl-torch: sweep interrupted; continue it with --resume", file=sys.stderr)
         return 130
     return 1 if "error" in status else 0
+
+
+def logger_names(given: list[str] | None) -> list[str]:
+    """``--logger`` values (repeated or comma lists) as names; none given: TensorBoard."""
+    names = [n.strip() for value in given or [] for n in value.split(",") if n.strip()]
+    if given and not names:
+        raise ValueError("--logger needs a name: tensorboard, csv, wandb or mlflow")
+    return names or ["tensorboard"]

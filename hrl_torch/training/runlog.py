@@ -163,6 +163,9 @@ class RunLogger:
         hparams: logged once per seed as text, to TensorBoard's HParams tab (flattened to
             dotted names, with the seed; ``tensorboard_hparams``) and to ``hparams.json``.
         tensorboard: write TensorBoard events (needs the ``tensorboard`` package).
+        trackers: other trackers through ``torchrl.record.loggers``: ``"csv"``, ``"wandb"``
+            (offline), ``"mlflow"`` (a SQLite store), inside ``run_dir``
+            (``hrl_torch.training.trackers``).
         resumed_at: a resumed run's checkpoint step. ``hparams.json`` keeps the original
             settings and appends this resume to its ``"resumes"``; rows logged after the step
             (by a run stopped between checkpoints) are dropped from the CSVs and
@@ -176,6 +179,7 @@ class RunLogger:
         hparams: dict,
         tensorboard: bool = True,
         resumed_at: int | None = None,
+        trackers: Sequence[str] = (),
     ) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -202,6 +206,16 @@ class RunLogger:
                     for summary in tensorboard_hparams({**hparams, "seed": s}):
                         w.file_writer.add_summary(summary)
                 self.writers.append(w)
+        self.trackers = None
+        if trackers:
+            from hrl_torch.training.trackers import Trackers
+
+            params = flat_hparams(hparams)
+            try:
+                self.trackers = Trackers(self.run_dir, trackers, self.seeds, params, resumed_at)
+            except BaseException:
+                self.close()  # the TensorBoard writers' threads stop
+                raise
 
     def _record_hparams(self, hparams: dict, resumed_at: int | None) -> dict:
         """Write ``hparams.json``: the original's settings, plus every resume."""
@@ -229,6 +243,8 @@ class RunLogger:
                     self.writers[k].add_scalar(tag, v, step)
         with open_own(self.csv_path, "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerows(rows)
+        if self.trackers is not None:
+            self.trackers.log(step, per_seed)
 
     def log_episodes(
         self, step: int, records, node_names: Sequence[str], partial: bool = False
@@ -266,10 +282,14 @@ class RunLogger:
             writer.writerows(rows)
 
     def close(self) -> None:
-        """Flush TensorBoard files."""
+        """Flush TensorBoard files; finish the trackers' runs."""
         for w in self.writers:
             w.flush()
             w.close()
+        self.writers = []
+        if self.trackers is not None:
+            self.trackers.close()
+            self.trackers = None
 
     def write_summary(self, summary: dict) -> Path:
         """Write ``summary.json``: valid JSON, a non-finite number as ``null``.
