@@ -29,6 +29,7 @@ def run_page(steps: int | None = None, seeds: str = "[0, 1, 2]") -> dict:
     return space
 
 
+@pytest.mark.slow  # (11 s: the fast check is tests/test_docs_blocks.py, the page at 1,000 steps)
 def test_the_page_runs_and_starts_untrained():
     space = run_page(16, "[0]")
     truncated = space["records"]["truncated"].float().mean().item()

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 
 import torch
 from torch import nn
@@ -47,10 +46,11 @@ from torch import nn
 from hrl_torch.common.devices import DeferredCheck
 from hrl_torch.common.ops import lookup
 from hrl_torch.common.rng import LevelDraws
-from hrl_torch.execution.transitions import LEVEL, Choice
+from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
+from hrl_torch.learners.pg_config import PGConfig
 from hrl_torch.learners.pg_stats import PGStats
 from hrl_torch.learners.pg_traces import (
     apply_traces,
@@ -59,10 +59,10 @@ from hrl_torch.learners.pg_traces import (
     ring_entries,
     value_baseline_traces,
 )
-from hrl_torch.learners.validate import check_fraction, check_positive
+from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
 from hrl_torch.modules.exploration import Schedule, as_schedule
-from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput
-from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead
+from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
+from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
 from hrl_torch.modules.tables import TableBank
 from hrl_torch.modules.tiles import TileCoder
 
@@ -81,64 +81,6 @@ def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
     return torch.where(
         depths[None, :] == 0, root_end[:, None], level["valid"].index_select(1, parent)
     )
-
-
-@dataclass
-class PGConfig:
-    """Options of the policy-gradient learners.
-
-    Attributes:
-        alpha: step size ``alpha_k`` (number or schedule over env steps per learner).
-        sigma: standard deviation of the Gaussian heads (in the pre-squash space).
-        action_low: lower end of a continuous action (after the sigmoid squash); ``None``
-            (default): the env's ``action_bounds``, which the trainer reads at its start (an
-            error when neither gives one: ``action_range.use_action_bounds``).
-        action_high: upper end (``None`` with ``action_low``).
-        online: Algorithm 3 line 16 every step (True) or the same sum once per renewal cycle
-            (False, the default since 0.2.x: it allows the baselines).
-        beta: eligibility discount, ``z_{k+1} = beta z_k + grad mu / mu``; 1 is Equation 5.3,
-            ``beta < 1`` is Baxter & Bartlett's biased, lower-variance estimate (which lines
-            11-16 of Algorithm 3 may be replaced with, Section 5.2).
-        trace_len: likelihood-ratio terms kept per invocation; an invocation that selects more
-            children than this raises (bound invocations with the executor's guard).
-        init: initial value of every policy parameter.
-        baseline: step size of ``b``, a running mean of the reward-to-go per learner and
-            parameter group, subtracted from it: ``theta += alpha sum_n (R_n - b) grad mu / mu``
-            over the cycle. A constant baseline keeps Equation 5.2 unbiased (``b`` moves only
-            after the cycle used it) and cuts its variance. 0 (default): Algorithm 3 as written.
-            Needs ``online=False`` (``R_n`` is known at the renewal).
-        frozen: accumulate ``sum (R + r~) z`` into ``grad_sum`` instead of changing ``theta``
-            (gradient estimates for tests and diagnostics).
-        value_rate: step size of a state baseline ``V(s)`` on the policy's own features (a
-            table laid out like ``theta``, moved toward the reward-to-go by Monte Carlo):
-            ``theta += alpha sum_n (R_n - V(s_n)) grad mu / mu`` over the cycle, unbiased
-            (``pg_traces.value_baseline_traces``). ``None`` (default): 0.1 where it applies
-            (``online=False``, no constant ``baseline``, not ``frozen``), else 0.
-    """
-
-    alpha: float | Schedule = 0.01
-    sigma: float = 1.0
-    action_low: float | None = None
-    action_high: float | None = None
-    online: bool = False
-    beta: float = 1.0
-    trace_len: int = 256
-    init: float = 0.0
-    baseline: float = 0.0
-    frozen: bool = False
-    value_rate: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.baseline and self.online:
-            raise ValueError("PGConfig.baseline needs online=False (the reward-to-go)")
-        excluded = self.online or self.baseline or self.frozen
-        if self.value_rate is None:  # (issue 33: the state baseline wherever it applies)
-            self.value_rate = 0.0 if excluded else 0.1
-        if self.value_rate < 0 or (self.value_rate and excluded):
-            raise ValueError(
-                "PGConfig.value_rate must be >= 0 and needs online=False, no baseline, not "
-                f"frozen (got value_rate={self.value_rate})"
-            )
 
 
 class HPGRLLearner(Learner):
@@ -524,5 +466,97 @@ class PGPolicy:
         return self.learner.select(inst, ctx, available, u, self.greedy, step, rows)
 
 
-# (ActorCriticLearner lives in actor_critic.py since 0.2.x; importable from here as before)
-from hrl_torch.learners.actor_critic import ActorCriticLearner  # noqa: E402, F401
+class ActorCriticLearner(HPGRLLearner):
+    """Flat actor-critic (Section 5.3, after Konda 2002) on a one-level continuous-action graph.
+
+    The actor is the root's tile-coded Gaussian (as flat PGRL); the critic is a tile-coded
+    ``Q(s, a)`` over the root's features and the action, learned by SARSA(0)::
+
+        Q(s, a) <- Q(s, a) + alpha_c [r + Q(s', a') - Q(s, a)]      (r at a terminal s')
+        theta  <- theta + beta [Q(s, a) - Q(s, a_mean(s))] grad log mu(a|s)
+
+    ``Q(s, a_mean)`` (the critic at the actor's mean action) is a state-dependent baseline: the
+    text's critic is not Konda's compatible one, whose values have zero mean over actions.
+
+    Args:
+        graph: a graph whose root has a single continuous primitive child and features.
+        n_learners: population size ``P``.
+        coder: actor tile coder (root features).
+        critic_coder: tile coder over ``[features, action]``.
+        config: the actor's options (``alpha`` is ``beta``).
+        critic_alpha: the critic's step size.
+        feature_reward: as for ``HPGRLLearner``.
+    """
+
+    def __init__(
+        self,
+        graph: TaskGraph,
+        n_learners: int,
+        coder: TileCoder,
+        critic_coder: TileCoder,
+        config: PGConfig | None = None,
+        critic_alpha: float | Schedule = 0.1,
+        feature_reward: Mapping[str, FeatureReward] | None = None,
+    ) -> None:
+        config = config or PGConfig()
+        config = PGConfig(**{**config.__dict__, "trace_len": 1, "online": True, "value_rate": 0})
+        super().__init__(graph, n_learners, config, [graph.root_name], coder, feature_reward)
+        if not self.has_gauss:
+            raise GraphError("ActorCriticLearner needs a root with one continuous child")
+        self.actor = self.heads[graph.root_name]
+        check_step_size(self, "critic_alpha", critic_alpha, one_for_all=True)
+        self.critic_alpha = as_schedule(critic_alpha)
+        self.critics = nn.ModuleDict(
+            {graph.root_name: TileValueHead(graph.root_name, critic_coder, n_learners)}
+        )
+        self.critic = self.critics[graph.root_name]
+
+    def _q_tiles(self, learner, features, action) -> torch.Tensor:
+        dims = self.critic.coder.resolution.numel() - 1
+        return self.critic.tiles(learner, torch.cat([features[:, :dims], action.reshape(-1, 1)], 1))
+
+    def update(self, batch, step: int) -> None:
+        """Critic SARSA(0) on the previous step, actor step on this one."""
+        level, prim = batch[LEVEL], batch[PRIMITIVE]
+        b = batch.batch_size[0]
+        rows = self._row_state(b, self.theta.device)
+        critic = self.critic
+        none = critic.w.numel() - 1  # the critic's sentinel
+        if "prev_tiles" not in rows:
+            t, dev = critic.coder.n_tilings, critic.w.device
+            rows["prev_tiles"] = torch.full((b, t), none, dtype=torch.long, device=dev)
+            rows["prev_r"] = torch.zeros(b, device=dev)
+            rows["has_prev"] = torch.zeros(b, dtype=torch.bool, device=dev)
+        depths = self.depths[:1]
+        valid = level["valid"][:, 0]
+        r = self.rewards(batch, level["node"].index_select(1, depths), depths)[:, 0]
+        learner, feats = batch["learner"], level["features"][:, 0]
+        tiles = torch.where(valid[:, None], self._q_tiles(learner, feats, prim["action"]), none)
+        q = critic.value(tiles)
+        # actor: baseline = the critic at the actor's mean action
+        _, mean = self.actor.mean(self.theta, learner * self.total, feats)
+        actor = self.actor
+        q_mean = critic.value(self._q_tiles(learner, feats, squash(mean, *actor.range())))
+        advantage = torch.where(valid, q - q_mean, 0.0)
+        slot0 = (
+            torch.where(valid[:, None], level["score_index"][:, 0], self.sentinel),
+            level["score_value"][:, 0],
+        )
+        alpha = self.alpha(step)
+        self.theta.index_add_(
+            0, slot0[0].reshape(-1), (alpha * advantage[:, None] * slot0[1]).reshape(-1)
+        )
+        self.theta[-1:].zero_()
+        # critic: the previous step bootstraps from Q(s, a) of this one; a terminal step at once
+        c_alpha = self.critic_alpha(step)
+        prev = rows["has_prev"] & valid
+        delta_prev = torch.where(prev, rows["prev_r"] + q - critic.value(rows["prev_tiles"]), 0.0)
+        terminal = level["terminal"][:, 0] & valid
+        delta_now = torch.where(terminal, r - q, 0.0)
+        critic.add(rows["prev_tiles"], c_alpha * delta_prev)
+        critic.add(tiles, c_alpha * delta_now)
+        self.record_td(learner, level["node"][:, 0], delta_prev, prev)
+        keep = valid & ~terminal & ~level["truncated"][:, 0]
+        rows["prev_tiles"] = torch.where(keep[:, None], tiles, none)
+        rows["prev_r"] = r
+        rows["has_prev"] = keep
