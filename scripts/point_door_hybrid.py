@@ -1,11 +1,16 @@
 """The hybrid on the held-out point-door task: share of the door rule's steps per seed.
 
-    .venv/bin/python scripts/point_door_hybrid.py --seeds 5 --steps 40000 [--set alpha=0.1 ...]
+    .venv/bin/python scripts/point_door_hybrid.py --seeds 5 --steps 100000 [--rooms] \
+        [--set alpha=0.003 ...]
 
-``--set`` overrides a ``PGConfig`` field (the defaults otherwise). Prints, at each log, the PG
-groups' scalars (``hrl_torch.learners.pg_stats``) averaged over seeds, and at the end, per
-seed, the greedy evaluation's mean steps, its share of the reference (rule steps / steps) and
-how many greedy episodes hit the step limit.
+``--set`` overrides a ``PGConfig`` field (the defaults otherwise; ``online=True`` is the rule
+before issue 33). ``--rooms``: the hierarchy with ``initiable`` rooms (``point_door_hierarchy``).
+The state-baseline rows of docs/defaults.md were first run through ``agents/ship_text.py``'s
+``LowLevelPG`` with ``online=False``; the framework's default gives the same numbers.
+
+Prints, at each log, the PG groups' scalars (``hrl_torch.learners.pg_stats``) averaged over
+seeds, and at the end, per seed, the greedy evaluation's mean steps, its share of the
+reference (rule steps / steps) and how many greedy episodes hit the step limit.
 """
 
 from __future__ import annotations
@@ -66,20 +71,12 @@ def main() -> None:
     ap.add_argument("--tilings", type=int, default=8)
     ap.add_argument("--set", nargs="*", default=[])
     ap.add_argument("--rooms", action="store_true")
-    ap.add_argument("--value-rate", type=float, default=0.0)
     args = ap.parse_args()
     torch.set_num_threads(1)
     seeds = list(range(args.seeds))
     graph = point_door_hierarchy(args.rooms)
     config = PGConfig(**parse_set(args.set))
     learner = make_hybrid(graph, len(seeds), config, relative_tile_coder(args.res, args.tilings))
-    if args.value_rate:  # (experiment: the -text ship's state baseline on this task)
-        from agents.ship_text import LowLevelPG
-
-        old = learner.pg
-        pg = LowLevelPG(graph, len(seeds), config, ["ToDoor", "ToGoal"], old.coder)
-        pg.value_rate = args.value_rate
-        learner = type(learner)(graph, len(seeds), learner.value, pg)
     logger = PrintLogger()
     trainer = Trainer(
         PointDoorEnv(seeds, args.envs),
@@ -104,7 +101,8 @@ def main() -> None:
     length = rec["length"].double().view(len(seeds), -1)
     trunc = rec["truncated"].view(len(seeds), -1).sum(1)
     share = ref / length.mean(1)
-    print(f"rooms {args.rooms} value_rate {args.value_rate} config {config}  envs {args.envs} eps {args.epsilon} tiles {args.res}x{args.tilings}")
+    tiles = f"{args.res}x{args.tilings}"
+    print(f"rooms {args.rooms} config {config} envs {args.envs} eps {args.epsilon} tiles {tiles}")
     print(f"reference {ref:.2f} steps; wall {time.time() - t0:.0f} s")
     for s in seeds:
         print(
