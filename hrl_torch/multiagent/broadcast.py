@@ -94,6 +94,7 @@ def recoded(agent, ctx, rows):
     return new
 
 
+
 def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.Tensor:
     """The others' ``U_l`` code each agent row sees when it chooses in agent order ``[B * n]``.
 
