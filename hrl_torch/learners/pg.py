@@ -138,6 +138,11 @@ class HPGRLLearner(Learner):
         if self.value_rate:  # the state baseline's table (``value_baseline_traces``)
             self.register_buffer("value_table", torch.zeros_like(self.theta))
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        if self.value_rate:  # (a checkpoint of a rule without the state baseline: V from 0)
+            state_dict.setdefault(prefix + "value_table", torch.zeros_like(self.value_table))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def log_scalars(self, step: int) -> dict[str, list[float]]:
         """Per PG group and learner: returns, policy, update norms (``pg_stats``), at a log."""
         return self.pg_stats.scalars(self, step)
