@@ -199,6 +199,7 @@ def make_hybrid(
             beta=params.pg_beta,
             baseline=params.pg_baseline,
             trace_len=LOW_LEVEL_GUARD,
+            value_rate=0.0,  # (this reading has no state baseline)
             **RUDDER,
         ),
         direction_groups(),
@@ -231,7 +232,12 @@ class ShipActorCritic(_Monitored, ActorCriticLearner):
 def make_flat_pg(graph: TaskGraph, n_learners: int, params: ShipHyperparams = PARAMS) -> FlatPGRL:
     """Flat PGRL: one Gaussian over 9 tilings of 20 x 20 x 36 x 5 of the global state."""
     config = PGConfig(
-        alpha=params.flat_alpha, sigma=params.sigma, online=params.online, trace_len=1000, **RUDDER
+        alpha=params.flat_alpha,
+        sigma=params.sigma,
+        online=params.online,
+        trace_len=1000,
+        value_rate=0.0,
+        **RUDDER,
     )
     return flat_pg_learner(graph, n_learners, config)
 

@@ -51,6 +51,7 @@ def make_hybrid_mlp(
         beta=params.pg_beta,
         baseline=params.pg_baseline,
         trace_len=LOW_LEVEL_GUARD,
+        value_rate=0.0,
     )
     pg = HPGRLLearner(
         graph,

@@ -58,7 +58,7 @@ from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Primitive, Subtask
 from hrl_torch.learners.hybrid import HybridLearner
 from hrl_torch.learners.pg import HPGRLLearner, PGConfig
-from hrl_torch.learners.pg_traces import entry_weights, static_pass
+from hrl_torch.learners.pg_traces import value_baseline_traces
 from hrl_torch.learners.q_lambda import QLambdaLearner
 from hrl_torch.modules.exploration import TriggeredEpsilon
 from hrl_torch.modules.policies import TileGaussianPolicyHead
@@ -213,6 +213,7 @@ def low_level_config(params: TextParams = TEXT) -> PGConfig:
         trace_len=LOW_LEVEL_GUARD,
         init=params.pg_init,
         baseline=params.pg_baseline,
+        value_rate=0.0,  # (its state baseline is _LowLevelRule's, set by ``configure``)
         **RUDDER,
     )
 
@@ -249,44 +250,6 @@ class ShipSubtaskEnv(ShipSteeringEnv):
         success = local_success(self.state, self._kind.to(self.device))
         self.success = success
         return reward, duration, success | local_failure(self.state)
-
-
-def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> None:
-    """Equation 5.2 less a state baseline: ``theta += alpha sum_n (R_n - V(s_n)) g_n``.
-
-    At the renewal of the pairs ``pairs [B, S]``; ``R_n`` is the (``beta``-discounted)
-    reward-to-go of ring entry ``n`` and ``V(s_n)`` the mean of ``learner.value_table`` over
-    the entry's active tiles (the policy's own CMAC: ``g_n``'s indices). ``V`` depends on
-    ``s_n`` alone and is read before this update changes it, so the estimate stays unbiased
-    (``E[g_n | s_n] = 0``). Then ``V`` moves toward ``R_n`` (Monte Carlo): every active tile by
-    ``value_rate`` times the mean of ``R_n - V(s_n)`` over the entries that hit it.
-    """
-    k1, width = learner.config.trace_len + 1, learner.width
-    if static_pass(learner, pairs):  # every pair, the others weigh 0 (no host read)
-        pair, chosen = torch.arange(pairs.numel(), device=pairs.device), pairs.reshape(-1)
-    else:
-        pair = pairs.reshape(-1).nonzero().squeeze(1)
-        if pair.numel() == 0:
-            return
-        chosen = torch.ones_like(pair, dtype=torch.bool)
-    count = rows["count"].view(-1)[pair]
-    filled = (torch.arange(k1, device=pair.device) < count[:, None]) & chosen[:, None]
-    reward = rows["reward"].view(-1, k1)[pair]
-    togo = entry_weights(learner, count, reward, filled, cell.view(-1)[pair])
-    index = rows["index"].view(-1, k1, width)[pair]  # [n, K + 1, T] (stale entries in range)
-    table = learner.value_table
-    advantage = torch.where(filled, togo.float() - table[index].mean(-1), 0.0)
-    flat = index.reshape(-1)
-    hits = filled[..., None].expand_as(index).reshape(-1).float()
-    total = torch.zeros_like(table).index_add_(
-        0, flat, advantage[..., None].expand_as(index).reshape(-1)
-    )
-    seen = torch.zeros_like(table).index_add_(0, flat, hits)
-    table.add_(learner.value_rate * total / seen.clamp_min(1.0))
-    table[-1:].zero_()  # (the sentinel)
-    step = (alpha * advantage)[..., None] * rows["value"].view(-1, k1, width)[pair]
-    learner.theta.index_add_(0, flat, step.reshape(-1))
-    learner.theta[-1:].zero_()
 
 
 class _LowLevelRule:

@@ -112,7 +112,7 @@ HPGRL_ALPHA = 0.005
 
 
 #: Algorithm 3 at every subtask: one softmax parameter per (abstract state, child)
-HPGRL_PG = PGConfig(alpha=HPGRL_ALPHA, trace_len=200)
+HPGRL_PG = PGConfig(alpha=HPGRL_ALPHA, trace_len=200, online=True)  # (the default before 0.2.x)
 
 
 DOMAIN = DomainSpec(

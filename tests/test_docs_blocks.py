@@ -31,6 +31,12 @@ SMALLER = {
         "seeds, steps = [0, 1, 2], 20_000": "seeds, steps = [0, 1], 1_000",
         "eval_episodes=50": "eval_episodes=5",
     },
+    "docs/your-own-hybrid.md": {
+        "seeds, steps = [0, 1, 2], 40_000": "seeds, steps = [0, 1], 400",
+        "eval_episodes=100": "eval_episodes=5",
+        "TwoDoorEnv([123] * len(seeds), 100)": "TwoDoorEnv([123] * len(seeds), 5)",
+        "eval_every=steps // 4": "eval_every=0",
+    },
     "docs/sweeps.md": {"seeds=5, steps=15_000": "seeds=2, steps=500"},
     "docs/multiagent-walkthrough.md": {
         "seeds, steps = [0, 1, 2], 12_000": "seeds, steps = [0, 1], 600",

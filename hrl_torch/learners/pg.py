@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 
 import torch
 from torch import nn
@@ -51,8 +50,15 @@ from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
 from hrl_torch.learners.base import Learner
+from hrl_torch.learners.pg_config import PGConfig
 from hrl_torch.learners.pg_stats import PGStats
-from hrl_torch.learners.pg_traces import apply_traces, check_overflow, overflow_error, ring_entries
+from hrl_torch.learners.pg_traces import (
+    apply_traces,
+    check_overflow,
+    overflow_error,
+    ring_entries,
+    value_baseline_traces,
+)
 from hrl_torch.learners.validate import check_fraction, check_positive, check_step_size
 from hrl_torch.modules.heads import PolicyChoice, PolicyHead, PolicyInput, TileValueHead
 from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, squash
@@ -75,49 +81,6 @@ def invocation_ended(batch, depths: torch.Tensor) -> torch.Tensor:
     return torch.where(
         depths[None, :] == 0, root_end[:, None], level["valid"].index_select(1, parent)
     )
-
-
-@dataclass
-class PGConfig:
-    """Options of the policy-gradient learners.
-
-    Attributes:
-        alpha: step size ``alpha_k`` (number or schedule over env steps per learner).
-        sigma: standard deviation of the Gaussian heads (in the pre-squash space).
-        action_low: lower end of a continuous action (after the sigmoid squash); ``None``
-            (default): the env's ``action_bounds``, which the trainer reads at its start (an
-            error when neither gives one: ``action_range.use_action_bounds``).
-        action_high: upper end (``None`` with ``action_low``).
-        online: Algorithm 3 line 16 every step (True) or the same sum once per renewal cycle.
-        beta: eligibility discount, ``z_{k+1} = beta z_k + grad mu / mu``; 1 is Equation 5.3,
-            ``beta < 1`` is Baxter & Bartlett's biased, lower-variance estimate (which lines
-            11-16 of Algorithm 3 may be replaced with, Section 5.2).
-        trace_len: likelihood-ratio terms kept per invocation; an invocation that selects more
-            children than this raises (bound invocations with the executor's guard).
-        init: initial value of every policy parameter.
-        baseline: step size of ``b``, a running mean of the reward-to-go per learner and
-            parameter group, subtracted from it: ``theta += alpha sum_n (R_n - b) grad mu / mu``
-            over the cycle. A constant baseline keeps Equation 5.2 unbiased (``b`` moves only
-            after the cycle used it) and cuts its variance. 0 (default): Algorithm 3 as written.
-            Needs ``online=False`` (``R_n`` is known at the renewal).
-        frozen: accumulate ``sum (R + r~) z`` into ``grad_sum`` instead of changing ``theta``
-            (gradient estimates for tests and diagnostics).
-    """
-
-    alpha: float | Schedule = 0.01
-    sigma: float = 1.0
-    action_low: float | None = None
-    action_high: float | None = None
-    online: bool = True
-    beta: float = 1.0
-    trace_len: int = 256
-    init: float = 0.0
-    baseline: float = 0.0
-    frozen: bool = False
-
-    def __post_init__(self) -> None:
-        if self.baseline and self.online:
-            raise ValueError("PGConfig.baseline needs online=False (the reward-to-go)")
 
 
 class HPGRLLearner(Learner):
@@ -171,6 +134,14 @@ class HPGRLLearner(Learner):
         self.register_buffer("reward_to_go_mean", torch.zeros(n_learners, len(self.group_names)))
         self._rows: dict[str, torch.Tensor] = {}
         self.pg_stats = PGStats(n_learners, self.theta, len(self.group_names))
+        self.value_rate = cfg.value_rate
+        if self.value_rate:  # the state baseline's table (``value_baseline_traces``)
+            self.register_buffer("value_table", torch.zeros_like(self.theta))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        if self.value_rate:  # (a checkpoint of a rule without the state baseline: V from 0)
+            state_dict.setdefault(prefix + "value_table", torch.zeros_like(self.value_table))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def log_scalars(self, step: int) -> dict[str, list[float]]:
         """Per PG group and learner: returns, policy, update norms (``pg_stats``), at a log."""
@@ -456,8 +427,13 @@ class HPGRLLearner(Learner):
         rows["count"] = count.masked_fill(ended, 0)
 
     def apply_traces(self, rows, pairs: torch.Tensor, alpha, cell: torch.Tensor) -> None:
-        """Line 16 over the rings of the pairs ``pairs [B, S]`` (``pg_traces.apply_traces``)."""
-        apply_traces(self, rows, pairs, alpha, cell)
+        """Line 16 over the rings of the pairs ``pairs [B, S]`` (``pg_traces``).
+
+        With a ``value_rate``: less the state baseline ``V(s_n)`` (``value_baseline_traces``).
+        """
+        (value_baseline_traces if self.config.value_rate else apply_traces)(
+            self, rows, pairs, alpha, cell
+        )
 
     def deferred_checks(self) -> list[DeferredCheck]:
         """The ring check, latched on the device instead of read (``training.deferred``)."""
@@ -528,7 +504,7 @@ class ActorCriticLearner(HPGRLLearner):
         feature_reward: Mapping[str, FeatureReward] | None = None,
     ) -> None:
         config = config or PGConfig()
-        config = PGConfig(**{**config.__dict__, "trace_len": 1, "online": True})
+        config = PGConfig(**{**config.__dict__, "trace_len": 1, "online": True, "value_rate": 0})
         super().__init__(graph, n_learners, config, [graph.root_name], coder, feature_reward)
         if not self.has_gauss:
             raise GraphError("ActorCriticLearner needs a root with one continuous child")

@@ -156,3 +156,46 @@ def overflow_error(learner, row: int, saved: dict) -> RuntimeError:
         f"PG node {name!r} selected more than trace_len={learner.config.trace_len} children in "
         "one invocation; raise PGConfig.trace_len or bound the subtask with the executor's guard"
     )
+
+
+def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> None:
+    """Equation 5.2 less a state baseline: ``theta += alpha sum_n (R_n - V(s_n)) g_n``.
+
+    At the renewal of the pairs ``pairs [B, S]``; ``R_n`` is the (``beta``-discounted)
+    reward-to-go of ring entry ``n`` and ``V(s_n)`` the mean of ``learner.value_table`` over
+    the entry's active tiles (the policy's own CMAC: ``g_n``'s indices). ``V`` depends on
+    ``s_n`` alone and is read before this update changes it, so the estimate stays unbiased
+    (``E[g_n | s_n] = 0``). Then ``V`` moves toward ``R_n`` (Monte Carlo): every active tile by
+    ``value_rate`` times the mean of ``R_n - V(s_n)`` over the entries that hit it.
+
+    ``learner`` holds ``value_table`` (laid out like ``theta``) and ``value_rate``
+    (``PGConfig.value_rate``). A softmax head's entries are its state's row, so ``V`` is then
+    a table over its abstract states. Used by ``HPGRLLearner.apply_traces`` and by the ship's
+    ``-text`` low level (``agents/ship_text.py``), where it was first measured (issue 26).
+    """
+    k1, width = learner.config.trace_len + 1, learner.width
+    if static_pass(learner, pairs):  # every pair, the others weigh 0 (no host read)
+        pair, chosen = torch.arange(pairs.numel(), device=pairs.device), pairs.reshape(-1)
+    else:
+        pair = pairs.reshape(-1).nonzero().squeeze(1)
+        if pair.numel() == 0:
+            return
+        chosen = torch.ones_like(pair, dtype=torch.bool)
+    count = rows["count"].view(-1)[pair]
+    filled = (torch.arange(k1, device=pair.device) < count[:, None]) & chosen[:, None]
+    reward = rows["reward"].view(-1, k1)[pair]
+    togo = entry_weights(learner, count, reward, filled, cell.view(-1)[pair])
+    index = rows["index"].view(-1, k1, width)[pair]  # [n, K + 1, T] (stale entries in range)
+    table = learner.value_table
+    advantage = torch.where(filled, togo.float() - table[index].mean(-1), 0.0)
+    flat = index.reshape(-1)
+    hits = filled[..., None].expand_as(index).reshape(-1).float()
+    total = torch.zeros_like(table).index_add_(
+        0, flat, advantage[..., None].expand_as(index).reshape(-1)
+    )
+    seen = torch.zeros_like(table).index_add_(0, flat, hits)
+    table.add_(learner.value_rate * total / seen.clamp_min(1.0))
+    table[-1:].zero_()  # (the sentinel)
+    step = (alpha * advantage)[..., None] * rows["value"].view(-1, k1, width)[pair]
+    learner.theta.index_add_(0, flat, step.reshape(-1))
+    learner.theta[-1:].zero_()

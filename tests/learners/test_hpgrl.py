@@ -251,4 +251,19 @@ def test_a_baseline_keeps_the_mean_and_lowers_the_variance_of_the_estimate():
 
 def test_a_baseline_needs_renewal_updates():
     with pytest.raises(ValueError, match="online=False"):
-        PGConfig(baseline=0.1)
+        PGConfig(baseline=0.1, online=True)
+
+
+def test_the_state_baseline_is_on_by_default_where_it_applies():
+    assert PGConfig().value_rate == 0.1 and not PGConfig().online  # (issue 33)
+    for excluded in ({"online": True}, {"baseline": 0.1}, {"frozen": True}):
+        assert PGConfig(**excluded).value_rate == 0.0, excluded
+        with pytest.raises(ValueError, match="value_rate"):
+            PGConfig(value_rate=0.1, **excluded)
+    with pytest.raises(ValueError, match="value_rate"):
+        PGConfig(value_rate=-0.1)
+    graph = hierarchy()
+    assert "value_table" in HPGRLLearner(graph, 2).state_dict()
+    old_rule = HPGRLLearner(graph, 2, PGConfig(value_rate=0.0)).state_dict()
+    assert "value_table" not in old_rule
+    HPGRLLearner(graph, 2).load_state_dict(old_rule)  # (its V starts at 0)
