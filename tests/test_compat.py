@@ -151,7 +151,7 @@ def test_a_schedule_on_its_0_2_0_path_warns_and_is_the_same_class():
     from hrl_torch.modules import schedules
 
     with pytest.warns(DeprecationWarning, match=r"exploration\.Linear moved to .*schedules"):
-        from hrl_torch.modules.schedules import Linear
+        from hrl_torch.modules.exploration import Linear
     assert Linear is schedules.Linear
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)  # today's names: no warning
