@@ -156,3 +156,20 @@ def overflow_error(learner, row: int, saved: dict) -> RuntimeError:
         f"PG node {name!r} selected more than trace_len={learner.config.trace_len} children in "
         "one invocation; raise PGConfig.trace_len or bound the subtask with the executor's guard"
     )
+
+
+def head_blocks(learner) -> list[torch.Tensor]:
+    """Copies ``[P, K]`` of the blocks of ``learner``'s self-stepping heads (``_stepped``)."""
+    p = learner.n_learners
+    return [learner.params.block(t).reshape(p, -1).clone() for t, _ in learner._stepped]
+
+
+def step_heads(learner, before: list[torch.Tensor], alpha) -> None:
+    """Line 16's step ``alpha F`` of each self-stepping head, replaced by its optimizer's.
+
+    ``F`` (Equation 5.2's estimate, ``(theta - before) / alpha``) is the same; only how far it
+    moves the head differs (``PolicyHead.optimizer_step``, e.g. Adam).
+    """
+    for (t, head), old in zip(learner._stepped, before, strict=False):  # (frozen: none)
+        block = learner.params.block(t).view(learner.n_learners, -1)
+        block.copy_(old + head.optimizer_step((block - old) / alpha))
