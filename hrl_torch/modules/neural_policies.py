@@ -134,7 +134,7 @@ class MLPPolicyHead(PolicyHead):
         self.register_buffer("theta0", torch.cat(parts), persistent=False)
 
     def _scaling(self, low, high, wrap) -> None:
-        for name in ("x_mid", "x_half", "wrapped"):
+        for name in ("x_mid", "x_half", "wrapped", "plain"):
             self.register_buffer(name, None, persistent=False)
         if low is None:
             return
@@ -143,8 +143,11 @@ class MLPPolicyHead(PolicyHead):
             raise ValueError(f"low and high need {self.n_inputs} values each with low < high")
         self.register_buffer("x_mid", (hi + lo) / 2, persistent=False)
         self.register_buffer("x_half", (hi - lo) / 2, persistent=False)
-        if wrap is not None and any(wrap):
-            self.register_buffer("wrapped", torch.tensor([bool(w) for w in wrap]), persistent=False)
+        if wrap is not None and any(wrap):  # (the angles' columns and the others')
+            flags = [bool(w) for w in wrap]
+            at = [[k for k, w in enumerate(flags) if w == side] for side in (True, False)]
+            self.register_buffer("wrapped", torch.tensor(at[0]), persistent=False)
+            self.register_buffer("plain", torch.tensor(at[1], dtype=torch.long), persistent=False)
 
     def bind(self, bank: TableBank, table: int) -> None:
         """Store the parameters in ``bank``'s block ``table``, starting at the initial weights."""
@@ -155,7 +158,7 @@ class MLPPolicyHead(PolicyHead):
             zeros = torch.zeros(bank.block(table).shape[0], self.width, device=bank.store.device)
             self.register_buffer("adam_m", zeros)
             self.register_buffer("adam_v", zeros.clone())
-            self.register_buffer("adam_t", torch.zeros((), device=bank.store.device))
+            self.register_buffer("adam_t", torch.zeros(1, device=bank.store.device))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         if self.steps_itself:  # (a checkpoint made without Adam: its moments start at 0)
@@ -202,8 +205,9 @@ class MLPPolicyHead(PolicyHead):
         x = (x - self.x_mid) / self.x_half
         if self.wrapped is None:
             return x
-        angle = math.pi * x[:, self.wrapped]  # (one turn: low .. high is -pi .. pi)
-        return torch.cat([x[:, ~self.wrapped], torch.sin(angle), torch.cos(angle)], 1)
+        angle = math.pi * x.index_select(1, self.wrapped)  # (one turn: low .. high, -pi .. pi)
+        plain = x.index_select(1, self.plain)
+        return torch.cat([plain, torch.sin(angle), torch.cos(angle)], 1)
 
     def forward_rows(self, params: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """The MLP's outputs ``[n, n_outputs]`` for per-row parameters ``params [n, K]``."""
@@ -314,7 +318,8 @@ class MLPGaussianPolicyHead(ActionRange, MLPPolicyHead):
             else:
                 noise = 0.0 if greedy else self.sigma * normals(inp.u, self.action_dim)
             pre = mean.detach() + noise
-            log_mu = Normal(mean, self.sigma).log_prob(pre)
+            scale = torch.full_like(mean, self.sigma)  # (no check: nothing read back)
+            log_mu = Normal(mean, scale, validate_args=False).log_prob(pre)
             (score,) = torch.autograd.grad(log_mu.sum(), params)
         flag = torch.full_like(inp.base, greedy, dtype=torch.bool)
         child = torch.zeros_like(inp.base)
@@ -396,7 +401,7 @@ class MLPCategoricalPolicyHead(MLPPolicyHead):
         with torch.enable_grad():
             index, params = self.row_params(theta, inp.base)
             logits = self.logits(params, x, ok)
-            dist = Categorical(logits=logits)
+            dist = Categorical(logits=logits, validate_args=False)
             best = masked_argmax(logits.detach(), ok)
             pick = best if greedy else sample_categorical(dist.probs.detach(), inp.u[:, 0])
             (score,) = torch.autograd.grad(dist.log_prob(pick).sum(), params)
