@@ -339,3 +339,15 @@ def test_a_two_entry_mlp_gaussian_learns_to_reach():
     learner.params.store.zero_()  # (untrained: every weight 0, the mean action 0)
     assert min(error()) > 2.0
     assert max(trained) < 1.25, trained
+
+
+def test_mlp_heads_log_their_weights_norm_not_tile_statistics():
+    heads = {
+        "Root": MLPGaussianPolicyHead("Root", 2, (4,), 0.5, action_dim=2, **RANGE),
+    }
+    learner = HPGRLLearner(reach_graph(), 3, heads=heads)
+    out = learner.log_scalars(0)
+    assert "hrl/Root/policy_mean" not in out and "hrl/Root/policy_spread" not in out
+    theta0 = heads["Root"].theta0
+    assert out["hrl/Root/weight_norm"] == pytest.approx([float(theta0.norm())] * 3)
+    assert out["hrl/Root/policy_sigma"] == [0.5] * 3
