@@ -13,7 +13,7 @@ from hrl_torch.learners.pg import HPGRLLearner, PGConfig
 from hrl_torch.modules.exploration import Greedy
 from hrl_torch.modules.heads import PolicyInput
 from hrl_torch.modules.neural_policies import MLPCategoricalPolicyHead, MLPGaussianPolicyHead
-from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead
+from hrl_torch.modules.policies import SoftmaxPolicyHead, TileGaussianPolicyHead, normals
 from hrl_torch.modules.tables import TableBank
 from hrl_torch.modules.tiles import TileCoder
 from hrl_torch.training.config import TrainConfig
@@ -351,3 +351,23 @@ def test_mlp_heads_log_their_weights_norm_not_tile_statistics():
     theta0 = heads["Root"].theta0
     assert out["hrl/Root/weight_norm"] == pytest.approx([float(theta0.norm())] * 3)
     assert out["hrl/Root/policy_sigma"] == [0.5] * 3
+
+
+def test_a_five_entry_gaussian_draws_seven_uniforms_and_acts_with_five_numbers():
+    from tensordict import TensorDict
+
+    from hrl_torch.common.rng import BatchRNG
+
+    head = MLPGaussianPolicyHead("Root", 2, (4,), action_dim=5, **RANGE)
+    learner = HPGRLLearner(gaussian_graph(5), 2, heads={"Root": head})
+    assert learner.n_uniforms == 7  # (1 + 3 Box-Muller pairs)
+    rng = BatchRNG([0, 1], 4, "draws")
+    assert learner.make_policy(Greedy(), rng).draws.levels.shape[-1] == 7
+    obs = TensorDict({"observation": torch.rand(8, 2)}, batch_size=[8])
+    ctx = learner.graph.context(obs, torch.arange(8) // 4)
+    u = rng.uniform(7)
+    out = learner.select(torch.zeros(8, dtype=torch.long), ctx, ctx.available[:, 0], u)
+    assert out.action.shape == (8, 5)
+    z = torch.logit((out.action + 15.0) / 30.0)  # (the mean is 0: the noise itself)
+    torch.testing.assert_close(z, normals(u, 5), atol=1e-3, rtol=1e-3)
+    assert len({round(float(v), 3) for v in z[0]}) == 5  # (five different numbers)
