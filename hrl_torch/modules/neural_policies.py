@@ -59,6 +59,18 @@ def _input_width(n_inputs: int, wrap, coder: TileCoder | None, n_states: int | N
     return n_inputs + (sum(bool(w) for w in wrap) if wrap is not None else 0)
 
 
+def _initial_weights(shapes, bias: bool, seed: int) -> torch.Tensor:
+    """Glorot-uniform hidden layers (for ``tanh``), a zero output layer, zero biases."""
+    gen = torch.Generator().manual_seed(seed)
+    parts = []
+    for k, (a, b) in enumerate(shapes):
+        bound = 0.0 if k == len(shapes) - 1 else math.sqrt(6.0 / (a + b))
+        parts.append(((torch.rand(a * b, generator=gen) * 2 - 1) * bound).view(-1))
+        if bias:
+            parts.append(torch.zeros(b))
+    return torch.cat(parts)
+
+
 class MLPPolicyHead(PolicyHead):
     """Base of the MLP heads: the inputs, the weights' layout in ``theta`` and the forward.
 
@@ -113,25 +125,13 @@ class MLPPolicyHead(PolicyHead):
         shapes = [(a, b) for a, b in zip(widths[:-1], widths[1:], strict=True)]
         n_params = sum(a * b + (b if bias else 0) for a, b in shapes)
         super().__init__(name, 1, n_params)
-        self.n_inputs, self.bias, self.coder, self.n_states_in = (
-            int(n_inputs),
-            bool(bias),
-            coder,
-            n_in,
-        )
-        self.shapes, self.width = shapes, n_params
+        self.n_inputs, self.bias, self.n_states_in = int(n_inputs), bool(bias), n_in
+        self.coder, self.shapes, self.width = coder, shapes, n_params
         self.adam_lr = None if adam_lr is None else float(adam_lr)
         self.steps_itself = adam_lr is not None
         self._scaling(low, high, wrap)
-        gen = torch.Generator().manual_seed(int(init_seed))
-        parts = []
-        for k, (a, b) in enumerate(self.shapes):
-            last = k == len(self.shapes) - 1
-            bound = 0.0 if last else math.sqrt(6.0 / (a + b))  # (Glorot-uniform for tanh)
-            parts.append(((torch.rand(a * b, generator=gen) * 2 - 1) * bound).view(-1))
-            if bias:
-                parts.append(torch.zeros(b))
-        self.register_buffer("theta0", torch.cat(parts), persistent=False)
+        theta0 = _initial_weights(shapes, self.bias, int(init_seed))
+        self.register_buffer("theta0", theta0, persistent=False)
 
     def _scaling(self, low, high, wrap) -> None:
         for name in ("x_mid", "x_half", "wrapped", "plain"):
