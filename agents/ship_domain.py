@@ -86,7 +86,15 @@ DOMAIN_EARLIER = DomainSpec(
         ),
         "hybrid-mlp": AlgoSpec(
             make_graph=lambda: ship_hierarchy(PARAMS.out_of_bounds_reward),
-            learner=Make(make_hybrid_mlp, params=PARAMS, hidden=32, pg_alpha=0.001),
+            # (Adam over HPGRL's estimate, the heading as its sine and cosine: docs/neural-heads.md)
+            learner=Make(
+                make_hybrid_mlp,
+                params=PARAMS,
+                hidden=32,
+                pg_alpha=0.001,
+                adam_lr=0.001,
+                wrap_heading=True,
+            ),
             exploration=Make(EpsilonGreedy, epsilon=PARAMS.epsilon),
             train=_TRAIN,
             # (each row keeps LOW_LEVEL_GUARD score traces of the MLP's 193 weights)

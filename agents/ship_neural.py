@@ -26,11 +26,22 @@ from hrl_torch.modules.exploration import TriggeredEpsilon
 from hrl_torch.modules.neural_policies import MLPGaussianPolicyHead
 
 
-def mlp_heads(sigma: float, hidden: int | tuple[int, ...] = 32) -> dict[str, MLPGaussianPolicyHead]:
-    """One MLP Gaussian head per low-level subtask, over its four local features."""
+def mlp_heads(
+    sigma: float,
+    hidden: int | tuple[int, ...] = 32,
+    adam_lr: float | None = None,
+    wrap_heading: bool = False,
+) -> dict[str, MLPGaussianPolicyHead]:
+    """One MLP Gaussian head per low-level subtask, over its four local features.
+
+    ``wrap_heading``: the heading as its sine and cosine (one turn is -180 .. 180 degrees).
+    """
     low, high = [0.0, 0.0, -180.0, -MAX_TURN], [LOCAL_SIZE, LOCAL_SIZE, 180.0, MAX_TURN]
+    wrap = [False, False, True, False] if wrap_heading else None
     return {
-        name: MLPGaussianPolicyHead(name, 4, hidden, sigma, -MAX_TURN, MAX_TURN, low, high)
+        name: MLPGaussianPolicyHead(
+            name, 4, hidden, sigma, -MAX_TURN, MAX_TURN, low, high, wrap=wrap, adam_lr=adam_lr
+        )
         for name in SUBTASK_NAMES
     }
 
@@ -41,8 +52,14 @@ def make_hybrid_mlp(
     params: ShipHyperparams = PARAMS,
     hidden: int | tuple[int, ...] = 32,
     pg_alpha: float = 0.001,
+    adam_lr: float | None = None,
+    wrap_heading: bool = False,
 ) -> HybridLearner:
-    """The hybrid with MLP Gaussian low-level subtasks (``pg_alpha``: their step size)."""
+    """The hybrid with MLP Gaussian low-level subtasks.
+
+    ``pg_alpha``: their step size (Algorithm 3 line 16), or with ``adam_lr`` Adam's over the
+    same estimate; ``wrap_heading``: the heading enters as its sine and cosine.
+    """
     value = QLambdaLearner(graph, n_learners, params.q_alpha, params.lam, nodes=["Root"])
     config = PGConfig(
         alpha=pg_alpha,
@@ -58,7 +75,7 @@ def make_hybrid_mlp(
         n_learners,
         config,
         direction_groups(),
-        heads=mlp_heads(params.sigma, hidden),
+        heads=mlp_heads(params.sigma, hidden, adam_lr, wrap_heading),
         feature_reward=low_level_feature_rewards(),
     )
     epsilon = TriggeredEpsilon(

@@ -112,8 +112,9 @@ class HybridLearner(Learner):
 class HybridPolicy:
     """Executor policy of a hybrid graph: exploration over action values, or PG sampling.
 
-    Each push reads one block of ``A + 4`` uniforms per row: ``A + 1`` for the value nodes'
-    exploration, 3 for the PG policies.
+    Each push reads one block of ``A + 1 + W`` uniforms per row: ``A + 1`` for the value nodes'
+    exploration, ``W`` (the PG learner's ``n_uniforms``, 3 unless a head needs more) for the
+    PG policies.
 
     Args:
         learner: the hybrid learner.
@@ -131,7 +132,8 @@ class HybridPolicy:
         self.exploration = exploration
         self.greedy = evaluate
         self.rng = rng
-        self.draws = LevelDraws(rng, learner.graph, learner.graph.max_children + 4)
+        width = learner.graph.max_children + 1 + learner.pg.n_uniforms
+        self.draws = LevelDraws(rng, learner.graph, width)
 
     def new_step(self) -> None:
         """Take this step's draw (``A + 4`` uniforms per level, read when asked)."""

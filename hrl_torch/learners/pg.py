@@ -49,6 +49,7 @@ from hrl_torch.common.rng import LevelDraws
 from hrl_torch.execution.transitions import LEVEL, PRIMITIVE, Choice
 from hrl_torch.hierarchy.graph import StepContext, TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError
+from hrl_torch.learners import pg_traces
 from hrl_torch.learners.base import Learner
 from hrl_torch.learners.pg_config import PGConfig
 from hrl_torch.learners.pg_stats import PGStats
@@ -186,6 +187,10 @@ class HPGRLLearner(Learner):
         self.total, self.sentinel = self.params.total, self.params.sentinel
         self.width = max([self.heads[n].width for n in names] + [1])
         self.has_gauss = any(self.heads[n].continuous for n in names)
+        self.n_uniforms = max([self.heads[n].n_uniforms for n in names] + [3])  # (per choice)
+        self.action_width = max(g.action_dim, 1)  # (of a continuous choice)
+        # heads stepping themselves (their optimizer over line 16's estimate)
+        self._stepped = [(t, h) for t, h in enumerate(self.heads.values()) if h.steps_itself]
         # heads that share an ``act`` call, and the groups each call serves
         batches: dict[object, list[int]] = {}
         for t, name in enumerate(names):
@@ -282,17 +287,17 @@ class HPGRLLearner(Learner):
         ``rows [R]``: ``inst``, ``available`` and ``u`` are those batch rows' (``ctx`` is the
         whole batch's); ``None``: every row.
 
-        ``u [B, 3]`` uniforms (a softmax sample, two for a normal). Each node's head chooses
-        for its rows; with ``greedy`` it takes the mode, otherwise it samples and the choice
-        carries its likelihood-ratio term (``score_index``/``score_value``), which the executor
-        keeps on the stack until the child ends and hands to ``update`` with the transition.
+        ``u [B, n_uniforms]`` uniforms (a softmax sample, two per pair of normals). Each node's
+        head chooses for its rows; with ``greedy`` it takes the mode, otherwise it samples and
+        the choice carries its likelihood-ratio term (``score_index``/``score_value``), which
+        the executor keeps on the stack until the child ends and hands to ``update``.
         Every row is computed (static shapes, no host read); the rows off PG nodes keep the
         defaults.
         """
         g, b, dev = self.graph, inst.shape[0], inst.device
         choice = torch.zeros(b, dtype=torch.long, device=dev)
         flag = torch.full((b,), greedy, dtype=torch.bool, device=dev)
-        action = torch.zeros(b, 1, device=dev) if self.has_gauss else None
+        action = torch.zeros(b, self.action_width, device=dev) if self.has_gauss else None
         index = torch.full((b, self.width), self.sentinel, dtype=torch.long, device=dev)
         score = torch.zeros(b, self.width, device=dev)
         out = Choice(choice, flag, action, None if greedy else index, None if greedy else score)
@@ -318,7 +323,7 @@ class HPGRLLearner(Learner):
         out.child = torch.where(on_pg, part.child, choice)
         out.greedy = torch.where(on_pg, part.greedy, flag)
         if action is not None and part.action is not None:
-            out.action = torch.where(on_pg[:, None], part.action[:, None], action)
+            out.action = torch.where(on_pg[:, None], part.action, action)
         if not greedy:
             out.score_index = torch.where(on_pg[:, None], part.index, index)
             out.score_value = torch.where(on_pg[:, None], part.score, score)
@@ -335,7 +340,7 @@ class HPGRLLearner(Learner):
         score = torch.zeros(n, self.width, device=dev)
         child = torch.zeros(n, dtype=torch.long, device=dev)
         flag = torch.full((n,), greedy, dtype=torch.bool, device=dev)
-        action = torch.zeros(n, device=dev) if self.has_gauss else None
+        action = torch.zeros(n, self.action_width, device=dev) if self.has_gauss else None
         for i, (head, first) in enumerate(self._batches):
             mine, part = None, inp
             if len(self._batches) > 1:
@@ -358,8 +363,10 @@ class HPGRLLearner(Learner):
                 child, flag = torch.where(mine, part[0], child), torch.where(mine, part[1], flag)
                 index = torch.where(mine[:, None], part[2], index)
                 score = torch.where(mine[:, None], part[3], score)
-            if out.action is not None:
-                action = out.action if mine is None else torch.where(mine, out.action, action)
+            if out.action is not None:  # ([n] or [n, D]: as [n, D])
+                act = out.action if out.action.dim() == 2 else out.action[:, None]
+                act = act.expand(n, self.action_width)
+                action = act if mine is None else torch.where(mine[:, None], act, action)
         return PolicyChoice(child, flag, action, index, score)
 
     def make_policy(self, exploration, rng, evaluate: bool = False) -> PGPolicy:
@@ -420,7 +427,9 @@ class HPGRLLearner(Learner):
         cell = batch["learner"][:, None] * len(self.group_names) + torch.take(
             self.node_group, node
         ).clamp(0)
-        self.apply_traces(rows, valid if cfg.online else ended, self.alpha(step), cell)
+        alpha, before = self.alpha(step), pg_traces.head_blocks(self) if not cfg.frozen else []
+        self.apply_traces(rows, valid if cfg.online else ended, alpha, cell)
+        pg_traces.step_heads(self, before, alpha)  # (a head's own optimizer over the same estimate)
         if cfg.frozen:  # (cycles ended per learner and group)
             self.cycles.view(-1).index_add_(0, cell.view(-1), ended.view(-1).float())
         self.pg_stats.record(rows["reward"], count, ended, cell)  # (returns per invocation)
@@ -454,10 +463,10 @@ class PGPolicy:
         self.learner = learner
         self.rng = rng
         self.greedy = greedy
-        self.draws = LevelDraws(rng, learner.graph, 3)
+        self.draws = LevelDraws(rng, learner.graph, learner.n_uniforms)
 
     def new_step(self) -> None:
-        """Take this step's draw (3 uniforms per level, read when asked)."""
+        """Take this step's draw (``n_uniforms`` per level, read when asked)."""
         self.draws.new_step()
 
     def select(self, inst, ctx, available, step, push) -> Choice:

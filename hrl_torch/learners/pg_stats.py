@@ -9,8 +9,9 @@ nodes that share its parameters), one value per seed:
 - ``hrl/<g>/policy_mean``, ``hrl/<g>/policy_spread``, ``hrl/<g>/policy_sigma`` (Gaussian
   heads): the action of the mean tile weight (``squash(mean w)``, in action units), the spread
   of the tile weights (pre-squash: how much the mean action varies over states) and the
-  sampling width ``sigma``; ``hrl/<g>/policy_entropy`` (softmax heads): the mean entropy of the
-  policy rows over the abstract states;
+  sampling width ``sigma``; ``hrl/<g>/policy_entropy`` (softmax heads): the mean entropy of
+  the policy rows over the abstract states; MLP heads (``neural_policies``, their weights are
+  no tile means or logits): ``hrl/<g>/weight_norm``, the norm of the weights (and ``sigma``);
 - ``losses/<g>/update_norm``: ``||theta_g - theta_g at the last log||``; ``losses/<g>/step_size``:
   ``alpha`` now; ``losses/<g>/gradient_norm``: the update's norm over ``alpha`` (the norm of the
   summed gradient estimates ``sum (R - b) z`` since the last log, for a constant ``alpha``).
@@ -27,7 +28,8 @@ import math
 import torch
 from torch import nn
 
-from hrl_torch.modules.policies import squash
+from hrl_torch.modules.neural_policies import MLPPolicyHead
+from hrl_torch.modules.policies import TileGaussianPolicyHead, squash
 
 __all__ = ["PGStats"]
 
@@ -90,13 +92,17 @@ class PGStats(nn.Module):
             out[f"losses/{name}/gradient_norm"] = [
                 m / a if a > 0 else math.nan for m, a in zip(moved, alphas, strict=True)
             ]
-            if head.continuous:
+            if isinstance(head, TileGaussianPolicyHead):
                 w = block[:, 0, :]
                 mean = w.mean(-1)
                 if head.low is not None:
                     out[f"hrl/{name}/policy_mean"] = squash(mean, head.low, head.high).tolist()
                 out[f"hrl/{name}/policy_spread"] = w.std(-1, correction=0).tolist()
                 out[f"hrl/{name}/policy_sigma"] = [head.sigma] * self.n_learners
+            elif isinstance(head, MLPPolicyHead):  # (weights, not tile means or logits)
+                out[f"hrl/{name}/weight_norm"] = block.flatten(1).norm(dim=1).tolist()
+                if head.continuous:
+                    out[f"hrl/{name}/policy_sigma"] = [head.sigma] * self.n_learners
             else:
                 logits = block[:, :, : head.n_children]
                 p = torch.softmax(logits, -1)

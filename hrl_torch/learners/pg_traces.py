@@ -199,3 +199,18 @@ def value_baseline_traces(learner, rows, pairs: torch.Tensor, alpha, cell) -> No
     step = (alpha * advantage)[..., None] * rows["value"].view(-1, k1, width)[pair]
     learner.theta.index_add_(0, flat, step.reshape(-1))
     learner.theta[-1:].zero_()
+def head_blocks(learner) -> list[torch.Tensor]:
+    """Copies ``[P, K]`` of the blocks of ``learner``'s self-stepping heads (``_stepped``)."""
+    p = learner.n_learners
+    return [learner.params.block(t).reshape(p, -1).clone() for t, _ in learner._stepped]
+
+
+def step_heads(learner, before: list[torch.Tensor], alpha) -> None:
+    """Line 16's step ``alpha F`` of each self-stepping head, replaced by its optimizer's.
+
+    ``F`` (Equation 5.2's estimate, ``(theta - before) / alpha``) is the same; only how far it
+    moves the head differs (``PolicyHead.optimizer_step``, e.g. Adam).
+    """
+    for (t, head), old in zip(learner._stepped, before, strict=False):  # (frozen: none)
+        block = learner.params.block(t).view(learner.n_learners, -1)
+        block.copy_(old + head.optimizer_step((block - old) / alpha))

@@ -137,7 +137,8 @@ class PolicyInput:
         state: abstract state of the choosing node ``[n]``.
         features: the node's continuous features ``[n, F]`` (``None`` without features).
         available: available children ``[n, A]``.
-        u: uniforms in ``[0, 1)`` ``[n, 3]``, the row's random numbers for this choice.
+        u: uniforms in ``[0, 1)`` ``[n, W]``, the row's random numbers for this choice (``W``:
+            the largest ``n_uniforms`` of the learner's heads, at least 3).
         step: env steps per learner (for schedules).
     """
 
@@ -156,7 +157,8 @@ class PolicyChoice:
     Attributes:
         child: the chosen child slot ``[n]``.
         greedy: the choice is the policy's mode ``[n]``.
-        action: the continuous action ``[n]`` (heads of continuous primitives) or ``None``.
+        action: the continuous action ``[n]``, or ``[n, D]`` for an action vector (heads of
+            continuous primitives), or ``None``.
         index: flat indices into ``theta`` of the score's nonzero entries ``[n, K]`` (pad
             with the learner's sentinel index, ``theta.numel() - 1``).
         score: ``grad mu(a|s) / mu(a|s)`` at those entries ``[n, K]`` (Equation 5.3).
@@ -187,6 +189,10 @@ class PolicyHead(Head):
 
     width: int = 1
     continuous: bool = False
+    #: uniforms per row a choice reads (``PolicyInput.u``; the learner draws the largest)
+    n_uniforms: int = 3
+    #: the head steps its parameters itself (``optimizer_step``), not by ``alpha F``
+    steps_itself: bool = False
 
     def __init__(self, name: str, n_states: int, n_cols: int) -> None:
         super().__init__(name)
@@ -214,6 +220,14 @@ class PolicyHead(Head):
 
     def act(self, theta: torch.Tensor, inp: PolicyInput, greedy: bool) -> PolicyChoice:
         """Choose for the rows of ``inp``: sample (``greedy=False``) or take the mode."""
+        raise NotImplementedError
+
+    def optimizer_step(self, estimate: torch.Tensor) -> torch.Tensor:
+        """The step ``[P, K]`` of the head's parameters for a gradient estimate ``[P, K]``.
+
+        Called after every update when ``steps_itself`` (e.g. Adam); by default Algorithm 3's
+        own step is used and this is not called.
+        """
         raise NotImplementedError
 
 

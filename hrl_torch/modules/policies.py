@@ -19,6 +19,7 @@ the likelihood-ratio term ``grad mu(a|s) / mu(a|s)`` of Equation 5.3 as a sparse
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
@@ -112,6 +113,88 @@ def box_muller(u1: torch.Tensor, u2: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(-2.0 * torch.log(u1.clamp_min(1e-7))) * torch.cos(2.0 * math.pi * u2)
 
 
+def normals(u: torch.Tensor, d: int) -> torch.Tensor:
+    """``d`` independent standard normals per row ``[n, d]`` from uniforms ``u [n, W]``.
+
+    Box-Muller on the pairs ``(u[:, 1], u[:, 2])``, ``(u[:, 3], u[:, 4])``, ...: each pair
+    gives two normals (cosine and sine), so ``W >= 1 + 2 ceil(d / 2)`` (column 0 is left to
+    a categorical choice). The first is ``box_muller(u[:, 1], u[:, 2])``.
+    """
+    m = (d + 1) // 2
+    if u.shape[1] < 1 + 2 * m:
+        raise ValueError(f"{d} normals need {1 + 2 * m} uniforms per row, got {u.shape[1]}")
+    radius = torch.sqrt(-2.0 * torch.log(u[:, 1 : 2 * m : 2].clamp_min(1e-7)))
+    angle = 2.0 * math.pi * u[:, 2 : 2 * m + 1 : 2]
+    pairs = torch.stack([radius * torch.cos(angle), radius * torch.sin(angle)], -1)
+    return pairs.reshape(u.shape[0], 2 * m)[:, :d]
+
+
+class ActionRange:
+    """Mixin of a continuous head: its action range, given or the env's ``action_bounds``.
+
+    ``low``/``high``: numbers for one action entry, tuples of ``action_dim`` numbers for more
+    (``None`` until given: the trainer sets the env's, ``use_action_bounds``).
+    """
+
+    low = high = None
+    action_dim = 1
+    #: how a user gives the range (the errors name it)
+    range_hint = "PGConfig(action_low=..., action_high=...)"
+
+    def init_range(self, low, high, old_default: tuple[float, float] | None = None) -> None:
+        """Take ``(low, high)`` if given; ``old_default``: the range used before, when none was."""
+        if (low is None) != (high is None):
+            raise ValueError(
+                f"Gaussian head {self.name!r}: give both ends of the action range or none"
+            )
+        #: the silent default of an older version this head would have had (a warning's)
+        self.old_default = old_default if low is None else None
+        if low is not None:
+            self.set_range(low, high)
+
+    def set_range(self, low: float | Sequence[float], high: float | Sequence[float]) -> None:
+        """The action range ``[low, high]`` that ``squash`` maps into (``low < high``).
+
+        Numbers, or one per action entry (a number serves every entry).
+        """
+        d = self.action_dim
+        lo = [float(v) for v in low] if isinstance(low, Sequence) else [float(low)] * d
+        hi = [float(v) for v in high] if isinstance(high, Sequence) else [float(high)] * d
+        if len(lo) != d or len(hi) != d:
+            raise ValueError(
+                f"Gaussian head {self.name!r} acts with {d} numbers: the action range has "
+                f"{len(lo)} and {len(hi)} ends"
+            )
+        if not all(a < b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(f"Gaussian head {self.name!r}: action range needs low < high")
+        if d == 1:
+            self.low, self.high = lo[0], hi[0]
+            return
+        self.low, self.high = tuple(lo), tuple(hi)
+        device = next(iter(self.buffers()), torch.empty(0)).device
+        for name, ends in (("action_lo", lo), ("action_hi", hi)):
+            self.register_buffer(name, torch.tensor(ends, device=device), persistent=False)
+
+    def range(self) -> tuple:
+        """``(low, high)``; a clear error while neither the head nor the env gave one."""
+        if self.low is None:
+            old = ""
+            if getattr(self, "old_default", None) is not None:
+                old = f" (before 0.2.1 it defaulted to {self.old_default})"
+            raise ValueError(
+                f"Gaussian head {self.name!r} has no action range{old}: give "
+                f"{self.range_hint} or train on an env with action_bounds"
+            )
+        return self.low, self.high
+
+    def squash(self, u: torch.Tensor) -> torch.Tensor:
+        """``u [n]`` (or ``[n, action_dim]``) into the range, entry by entry (``squash``)."""
+        low, high = self.range()
+        if self.action_dim == 1:
+            return squash(u, low, high)
+        return self.action_lo + (self.action_hi - self.action_lo) * torch.sigmoid(u)
+
+
 # -- heads
 
 
@@ -159,7 +242,7 @@ class SoftmaxPolicyHead(PolicyHead):
         return PolicyChoice(pick, pick == best, None, index, score)
 
 
-class TileGaussianPolicyHead(PolicyHead):
+class TileGaussianPolicyHead(ActionRange, PolicyHead):
     """Gaussian over tile-coded features, squashed into ``[low, high]``: ``w [n_tiles]``.
 
     Args:
@@ -185,27 +268,9 @@ class TileGaussianPolicyHead(PolicyHead):
             raise ValueError(f"sigma must be positive, got {sigma}")
         super().__init__(name, 1, coder.n_features)
         self.coder = coder
-        self.sigma, self.low, self.high = float(sigma), None, None
-        if (action_low is None) != (action_high is None):
-            raise ValueError(f"Gaussian head {name!r}: give both ends of the action range or none")
-        if action_low is not None:
-            self.set_range(action_low, action_high)
+        self.sigma = float(sigma)
+        self.init_range(action_low, action_high)
         self.width = coder.n_tilings
-
-    def set_range(self, low: float, high: float) -> None:
-        """The action range ``[low, high]`` that ``squash`` maps into (``low < high``)."""
-        if not float(low) < float(high):
-            raise ValueError(f"Gaussian head {self.name!r}: action range needs low < high")
-        self.low, self.high = float(low), float(high)
-
-    def range(self) -> tuple[float, float]:
-        """``(low, high)``; a clear error while neither the config nor the env gave one."""
-        if self.low is None:
-            raise ValueError(
-                f"Gaussian head {self.name!r} has no action range: give PGConfig(action_low=..., "
-                "action_high=...) or train on an env with action_bounds"
-            )
-        return self.low, self.high
 
     def batch_key(self) -> object:
         """Gaussian heads over one coder with one sigma and range share one call."""
