@@ -226,7 +226,10 @@ def test_a_categorical_mlp_head_learns_which_child_each_feature_wants():
     root = Subtask("Root", ["a0", "a1", "a2"], features=lambda o: o["observation"], n_features=2)
     graph = TaskGraph("Root", [root, *(Primitive(f"a{k}", k) for k in range(3))], 3)
     head = MLPCategoricalPolicyHead("Root", 2, 3, (16,), low=[0, 0], high=[1, 1], adam_lr=0.03)
-    learner = HPGRLLearner(graph, 2, PGConfig(trace_len=4), heads={"Root": head})
+    # (Algorithm 3's every-step rule, as measured; PGConfig's default renewal rule with the state
+    # baseline, which over an MLP's dense parameters is one running mean, gave 0.71 and 0.69)
+    pg = PGConfig(trace_len=4, online=True)
+    learner = HPGRLLearner(graph, 2, pg, heads={"Root": head})
     config = TrainConfig(steps=2_000, eval_every=0, progress=False)
     trainer = Trainer(Pick([0, 1], 32), graph, learner, Greedy(), config)
     x = torch.rand(200, 2, generator=torch.Generator().manual_seed(5))
