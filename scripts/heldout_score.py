@@ -52,8 +52,8 @@ def polling_shares(run: Path) -> tuple[list[float], list[int], list[float]]:
     The greedy policy is read from the checkpoint: its first action in each of the 50 states
     (the subtasks below the root have one choice each, so the first action names the root's
     choice: Process here, Switch to serve the other queue, Wait), then evaluated exactly on
-    the hierarchy's SMDP (``polling.hierarchy_model``). The run's simulated greedy throughput
-    is printed beside it.
+    the hierarchy's SMDP (``polling.hierarchy_model``; a flat learner's on the flat SMDP).
+    The run's simulated greedy throughput is printed beside it.
     """
     optimum = polling.gain(*polling.exact_model())
     trainer, _ = evaluate_run(run)
@@ -65,8 +65,12 @@ def polling_shares(run: Path) -> tuple[list[float], list[int], list[float]]:
     zero = torch.zeros(env.batch_size)
     obs = env._output(zero, zero, zero.bool(), zero.bool(), zero.bool())
     action = trainer.evaluation_agent(env, "score").start(obs).view(trainer.P, -1)
-    model = polling.hierarchy_model()
-    gains = [polling.gain(*model, polling.hierarchy_rule(a)) for a in action]
+    if "Serve0" in trainer.graph.names:  # the hierarchy
+        model = polling.hierarchy_model()
+        gains = [polling.gain(*model, polling.hierarchy_rule(a)) for a in action]
+    else:  # a flat learner: its actions are the policy
+        model = polling.exact_model()
+        gains = [polling.gain(*model, a) for a in action]
     summary = json.loads((run / "summary.json").read_text())
     simulated = [round(s["final_eval_throughput"], 4) for s in summary["per_seed"]]
     print(f"  (simulated greedy throughput per seed: {simulated})")

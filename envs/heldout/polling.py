@@ -119,8 +119,12 @@ def _after(q: int, k: int, duration: float) -> list[float]:
     return out
 
 
-def exact_model():
-    """``(P [S, 3, S], reward [S, 3], tau [S, 3])`` float64: the SMDP of the env, exactly."""
+def exact_model(gamma: float = 1.0):
+    """``(P [S, 3, S], reward [S, 3], tau [S, 3])`` float64: the SMDP of the env, exactly.
+
+    With ``gamma < 1``, ``P`` holds ``E[gamma^tau; s']`` instead (the discounted model: the
+    values of the discounted learners' SMDP, ``V = max_a r + P V``).
+    """
     c = CAPACITY + 1
     P = torch.zeros(N_STATES, 3, N_STATES, dtype=torch.float64)
     reward = torch.zeros(N_STATES, 3, dtype=torch.float64)
@@ -140,10 +144,26 @@ def exact_model():
                 p0, p1 = _after(start[0], 0, d), _after(start[1], 1, d)
                 for i in range(c):
                     for j in range(c):
-                        P[s, a, (new_where * c + i) * c + j] += pd * p0[i] * p1[j]
+                        P[s, a, (new_where * c + i) * c + j] += pd * gamma**d * p0[i] * p1[j]
                 tau[s, a] += pd * d
             reward[s, a] = PAY[where] if serve else 0.0
     return P, reward, tau
+
+
+def discounted_policy(gamma: float, tol: float = 1e-12) -> torch.Tensor:
+    """The discount-optimal flat policy ``[S]`` for ``gamma`` per unit of time.
+
+    A discounted learner's target for a primitive step is ``r + gamma^tau V(s')``: the step's
+    reward undiscounted, the next state's value discounted by the step's duration.
+    """
+    P, r, _ = exact_model(gamma)
+    v = torch.zeros(N_STATES, dtype=torch.float64)
+    for _ in range(100_000):
+        new = (r + P @ v).amax(1)
+        if float((new - v).abs().max()) < tol:
+            return (r + P @ new).argmax(1)
+        v = new
+    raise RuntimeError("value iteration did not converge")
 
 
 def gain(P, reward, tau, policy=None, tol: float = 1e-12, max_iter: int = 200_000) -> float:
@@ -220,5 +240,7 @@ def hierarchy_model():
 
 def hierarchy_rule(policy: torch.Tensor) -> torch.Tensor:
     """A flat policy ``[S]`` (Serve/Switch/Wait) as the root's choices (0/1 Serve_k, 2 Wait)."""
-    where, _, _ = states()
-    return torch.where(policy == WAIT, 2, torch.where(policy == SERVE, where, 1 - where))
+    where, q0, q1 = states()
+    empty = torch.where(where == 0, q0, q1) == 0  # (Serve at an empty queue waits)
+    wait = (policy == WAIT) | ((policy == SERVE) & empty)
+    return torch.where(wait, 2, torch.where(policy == SERVE, where, 1 - where))

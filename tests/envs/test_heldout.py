@@ -44,6 +44,9 @@ def test_polling_references():
     assert polling.gain(*polling.hierarchy_model()) == pytest.approx(1.35749, abs=1e-5)
     assert polling.gain(P, r, tau, polling.exhaustive_rule()) == pytest.approx(1.35064, abs=1e-5)
     assert polling.gain(P, r, tau, polling.priority_rule()) == pytest.approx(1.27794, abs=1e-5)
+    # the discount-optimal policy at HDR's registered gamma (0.95 per unit of time)
+    hdr = polling.hierarchy_rule(polling.discounted_policy(0.95))
+    assert polling.gain(*polling.hierarchy_model(), hdr) == pytest.approx(1.33967, abs=1e-5)
 
 
 @pytest.mark.parametrize(
