@@ -18,12 +18,12 @@ from __future__ import annotations
 import torch
 
 from agents.trash_optimum import (
-    _digits,
-    _fresh,
-    _start,
+    choosing_start,
+    fresh_task,
     hierarchy_model,
     optimal_policy,
     projected_gain,
+    task_digits,
 )
 from envs.trash import N_CELLS, decode
 
@@ -35,7 +35,7 @@ class _Views:
 
     def __init__(self, s: torch.Tensor, reward: torch.Tensor) -> None:
         z = torch.arange(len(s))
-        self.task = _digits(z % 9, 2)
+        self.task = task_digits(z % 9, 2)
         state = decode(s, 2)
         cans = state["cans"][:, 0].long() + 2 * state["cans"][:, 1].long()
         self.own = state["location"] * 4 + cans[:, None]
@@ -45,7 +45,7 @@ class _Views:
         """The joint choice ``[Z]`` of the robots' rules (as ``projected_gain`` builds it)."""
         task, own, z = self.task, self.own, self.z
         c0 = torch.where(task[:, 0] == 0, rule0[own[:, 0] * 4 + task[:, 1]], task[:, 0] - 1)
-        c1 = rule1[own[:, 1] * 4 + _fresh(task, c0)]
+        c1 = rule1[own[:, 1] * 4 + fresh_task(task, c0)]
         c1 = torch.where(task[:, 1] == 0, c1, task[:, 1] - 1)
         choice = c0 * 3 + c1
         wait = torch.isinf(self.reward[z, choice])  # a can the rule wants is empty: wait
@@ -59,7 +59,7 @@ class _Views:
         c0 = torch.where(
             self.task[:, 0] == 0, rule0[self.own[:, 0] * 4 + self.task[:, 1]], self.task[:, 0] - 1
         )
-        return self.own[:, 1] * 4 + _fresh(self.task, c0)
+        return self.own[:, 1] * 4 + fresh_task(self.task, c0)
 
 
 def chain(nxt, prob, reward, start, d=None, h=None, tol: float = 1e-12, iters: int = 400_000):
@@ -92,7 +92,7 @@ def improved_lower_bound(refill_prob: float = 0.1, rounds: int = 30, top: int = 
     nxt, prob, reward, s = hierarchy_model(2, refill_prob)
     views = _Views(s, reward)
     rules = _projected_rules(nxt, prob, reward, s, views, refill_prob)
-    start = _start(s, refill_prob)
+    start = choosing_start(s, refill_prob)
     z = views.z
     choice = views.choice(*rules)
     gain, d, h = chain(nxt[z, choice], prob, reward[z, choice], start)
@@ -136,16 +136,18 @@ def improved_lower_bound(refill_prob: float = 0.1, rounds: int = 30, top: int = 
 
 def _projected_rules(nxt, prob, reward, s, views: _Views, refill_prob: float):
     """``projected_gain``'s rules: the joint optimum's most frequent choice per view."""
-    from agents.trash_optimum import _gain_and_occupancy
+    from agents.trash_optimum import gain_and_occupancy
 
     z = views.z
     best = optimal_policy(nxt, prob, reward)
-    _, weight = _gain_and_occupancy(nxt[z, best], prob, reward[z, best], _start(s, refill_prob))
+    _, weight = gain_and_occupancy(
+        nxt[z, best], prob, reward[z, best], choosing_start(s, refill_prob)
+    )
     digit = torch.stack([best // 3, best % 3], 1)
     seen = torch.stack(
         [
             views.own[:, 0] * 4 + views.task[:, 1],
-            views.own[:, 1] * 4 + _fresh(views.task, digit[:, 0]),
+            views.own[:, 1] * 4 + fresh_task(views.task, digit[:, 0]),
         ],
         1,
     )

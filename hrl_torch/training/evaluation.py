@@ -26,7 +26,7 @@ from hrl_torch.common.progress import progress_bar
 from hrl_torch.common.signals import stop_requested
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
-from hrl_torch.training.loops import LOOP_WINDOW, Loops, RecentStates
+from hrl_torch.training.loops import LOOP_WINDOW, Loops, RecentStates, limit_note
 
 __all__ = [
     "MAX_DECISIONS",
@@ -92,6 +92,10 @@ class Evaluator:
         """What ``summary.json`` adds for one learner."""
         return {}
 
+    def limit_note(self) -> str:
+        """What the progress line adds about the latest evaluation's episodes (``""``: none)."""
+        return ""
+
 
 class EpisodicEvaluator(Evaluator):
     """Mean return and success rate of one greedy episode per eval-env row (the default)."""
@@ -146,6 +150,12 @@ class EpisodicEvaluator(Evaluator):
         rows (``subset_safe``, ``HierarchicalAgent.subset``) plays them all.
         """
         return _episodes(trainer, learners)[0]
+
+    def limit_note(self) -> str:
+        """How many episodes hit the step limit, the first one's cycle (``loops.limit_note``)."""
+        if self.last_records is None:
+            return ""
+        return limit_note(self.last_records, self.last_loops or [])
 
     def summary(self, learner: int) -> dict:
         """``final_eval_step_limit``: ``learner``'s latest episodes that hit the step limit.

@@ -36,7 +36,6 @@ from hrl_torch.training.counters import LoopCounters
 from hrl_torch.training.cuda_graph import step_for
 from hrl_torch.training.deferred import defer_checks, raise_pending
 from hrl_torch.training.evaluation import EpisodicEvaluator, EvalHistory, Evaluator, eval_line
-from hrl_torch.training.loops import limit_note
 from hrl_torch.training.metrics import EpisodeTracker
 from hrl_torch.training.runlog import RunLogger, hparams_of
 from hrl_torch.training.steps import CollectedSteps, DirectSteps
@@ -274,15 +273,12 @@ class Trainer:
         self.counters.eval_seconds += self.eval_seconds
         cut = self.evaluator.last_partial  # a signal cut it short: logged, not on the curve
         if self.logger and self.last_eval_records is not None:
-            records, names = self.last_eval_records, self.graph.names
-            loops = self.evaluator.last_loops
-            self.logger.log_episodes(self.step, records, names, cut is not None, loops)
+            records, loops = self.last_eval_records, self.evaluator.last_loops
+            self.logger.log_episodes(self.step, records, self.graph.names, cut is not None, loops)
         values = mean.tolist()
         if self.logger or self.config.progress:  # the result as it happens (CLI runs)
             line = eval_line(self.step, self.evaluator.tags[0], values, self.eval_seconds)
-            if self.last_eval_records is not None:  # (episodes at the step limit, named)
-                line += limit_note(self.last_eval_records, self.evaluator.last_loops or [])
-            tqdm.write(line + (f" (partial: {cut})" if cut else ""))
+            tqdm.write(line + self.evaluator.limit_note() + (f" (partial: {cut})" if cut else ""))
         if cut is not None:
             self.partial_eval = {"step": self.step, "signal": cut, "values": values}
             return

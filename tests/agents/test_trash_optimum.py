@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from agents.trash_decentralised import _Views, chain, improved_lower_bound
-from agents.trash_optimum import _start, hierarchical_optimum, hierarchy_model, lower_action
+from agents.trash_optimum import choosing_start, hierarchical_optimum, hierarchy_model, lower_action
 from envs.trash import decode, exact_model
 from hrl_torch.analysis.joint import JointChain, chain_gain, optimal_gain
 
@@ -59,5 +59,5 @@ def test_decentralised_improvement_tightens_the_cooperative_root_bracket():
     views = _Views(s, reward)
     c = views.choice(*rules)
     z = torch.arange(len(s))
-    gain, _, _ = chain(nxt[z, c], prob, reward[z, c], _start(s, 0.1))
+    gain, _, _ = chain(nxt[z, c], prob, reward[z, c], choosing_start(s, 0.1))
     assert abs(gain - best) < 1e-9  # (the gain is the rules', recomputed)
