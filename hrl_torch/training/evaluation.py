@@ -322,6 +322,7 @@ class EvalEpisodes:
         self.alive = batch_size  # rows of ``now`` still playing
         self.unread = False  # ``add`` has seen steps since it last counted ``alive``
         self.recent = RecentStates()  # the last observations of each row (``loops``)
+        self.t = 0  # steps added
         self.loops: Loops | list[str] = [""] * batch_size
 
     def _save(self) -> None:
@@ -351,19 +352,19 @@ class EvalEpisodes:
         return self.alive
 
     def _remember(self, td, playing: torch.Tensor) -> None:
-        """Keep the step's observation of each playing row at slot ``length % LOOP_WINDOW``."""
+        """Keep the step's observation of each playing row at slot ``t % LOOP_WINDOW``.
+
+        ``t`` is the step's index: every row's episode starts at the evaluation's start, so a
+        row that still plays is at its own step ``t`` (two ops a step, no read of the device).
+        """
         codes = self.recent.codes(td)
         if "recent" not in self.now:  # (the fields are known at the first step)
-            shape = (codes.shape[1],)
-            self.all["recent"] = codes.new_full(
-                (self.all["return"].shape[0], LOOP_WINDOW, *shape), -1
-            )
+            shape = (self.all["return"].shape[0], LOOP_WINDOW, codes.shape[1])
+            self.all["recent"] = codes.new_full(shape, -1)
             self.now["recent"] = self.all["recent"][self.live]
-        ring = self.now["recent"]
-        slot = (self.now["length"].long() % LOOP_WINDOW)[:, None, None]
-        index = slot.expand(-1, 1, codes.shape[1])  # (gather / scatter: no read of the device)
-        kept = torch.where(playing[:, None, None], codes[:, None], ring.gather(1, index))
-        ring.scatter_(1, index, kept)
+        ring = self.now["recent"].select(1, self.t % LOOP_WINDOW)
+        ring.copy_(torch.where(playing[:, None], codes, ring))
+        self.t += 1
 
     def record_root_decisions(self, executor, graph: TaskGraph, read: bool = True) -> None:
         """After ``act``: the root's new child in each row still playing.

@@ -30,11 +30,17 @@ class RecentStates:
     def __init__(self) -> None:
         self.keys: list[tuple[str, ...]] | None = None
         self.names: list[str] = []
+        self.plain = False
 
     def codes(self, td) -> torch.Tensor:
         """``[B, F]`` long: the step's discrete fields (``td``: a TensorDict or its entries)."""
         if self.keys is None:
             self.keys, self.names = _discrete_keys(td)
+            self.plain = bool(self.keys) and all(
+                _get(td, k).dim() == 1 and _get(td, k).dtype == torch.long for k in self.keys
+            )
+        if self.plain:  # (one op: every field is a [B] long)
+            return torch.stack([_get(td, key) for key in self.keys], 1)
         b = td["reward"].shape[0]
         parts = [_get(td, key).reshape(b, -1).long() for key in self.keys]
         if not parts:
@@ -120,6 +126,8 @@ class Loops:
         n = min(length, window)
         if n == 0:
             return "no step played"
+        if self.ring.shape[2] == 0:
+            return "hit the step limit (no discrete observation fields to show)"
         seen = self.ring[r, torch.arange(length - n, length) % window]
         p = cycle(seen)
         if p:
