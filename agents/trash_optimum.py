@@ -55,13 +55,13 @@ def hierarchy_model(n_agents: int = 2, refill_prob: float = 0.1):
     tasks = N_TASKS**n_agents
     z = torch.arange(m.n_states * tasks)
     s, code = z // tasks, z % tasks
-    task = _digits(code, n_agents)  # [Z, n]
+    task = task_digits(code, n_agents)  # [Z, n]
     state = decode(s, n_agents)
     n_choices = 3**n_agents
     nxt = torch.zeros(len(z), n_choices, len(m.prob), dtype=torch.long)
     reward = torch.full((len(z), n_choices), -torch.inf, dtype=torch.float64)
     for c in range(n_choices):
-        choice = _digits(torch.full_like(s, c), n_agents) + 1  # [Z, n] in 1..3
+        choice = task_digits(torch.full_like(s, c), n_agents) + 1  # [Z, n] in 1..3
         full = state["cans"].gather(1, (choice - 1).clamp(0, 1))
         allowed = ((task == 0) & ((choice == 3) | full)) | (task == choice)
         a = m.joint_action(lower_action(state["location"], state["carrying"], choice))
@@ -109,16 +109,16 @@ def projected_gain(refill_prob: float = 0.1, selfish: bool = False) -> tuple[flo
     nxt, prob, reward, s = hierarchy_model(2, refill_prob)
     z = torch.arange(len(s))
     best = optimal_policy(nxt, prob, reward)
-    start = _start(s, refill_prob)
-    gain, weight = _gain_and_occupancy(nxt[z, best], prob, reward[z, best], start)
-    task = _digits(z % 9, 2)
+    start = choosing_start(s, refill_prob)
+    gain, weight = gain_and_occupancy(nxt[z, best], prob, reward[z, best], start)
+    task = task_digits(z % 9, 2)
     state = decode(s, 2)
     cans = state["cans"][:, 0].long() + 2 * state["cans"][:, 1].long()
     own = state["location"] * 4 + cans[:, None]  # [Z, 2] (an empty robot chooses)
     digit = torch.stack([best // 3, best % 3], 1)
     tell = 0 if selfish else 1  # (a selfish root sees no task: code 0 for all)
     seen = torch.stack(
-        [own[:, 0] * 4 + tell * task[:, 1], own[:, 1] * 4 + tell * _fresh(task, digit[:, 0])], 1
+        [own[:, 0] * 4 + tell * task[:, 1], own[:, 1] * 4 + tell * fresh_task(task, digit[:, 0])], 1
     )
     rule = []
     for j in range(2):
@@ -127,22 +127,22 @@ def projected_gain(refill_prob: float = 0.1, selfish: bool = False) -> tuple[flo
         votes.index_put_((seen[chooses, j], digit[chooses, j]), weight[chooses] + 1e-12, True)
         rule.append(votes.argmax(1))
     c0 = torch.where(task[:, 0] == 0, rule[0][seen[:, 0]], task[:, 0] - 1)
-    c1 = rule[1][own[:, 1] * 4 + tell * _fresh(task, c0)]
+    c1 = rule[1][own[:, 1] * 4 + tell * fresh_task(task, c0)]
     c1 = torch.where(task[:, 1] == 0, c1, task[:, 1] - 1)
     choice = c0 * 3 + c1
     wait = torch.isinf(reward[z, choice])  # a can the rule wants is empty here: wait instead
     choice = torch.where(wait & (task[:, 0] == 0), 6 + c1, choice)
     choice = torch.where(torch.isinf(reward[z, choice]), choice - choice % 3 + 2, choice)
-    projected, _ = _gain_and_occupancy(nxt[z, choice], prob, reward[z, choice], start)
+    projected, _ = gain_and_occupancy(nxt[z, choice], prob, reward[z, choice], start)
     return gain, projected
 
 
-def _fresh(task: torch.Tensor, c0: torch.Tensor) -> torch.Tensor:
+def fresh_task(task: torch.Tensor, c0: torch.Tensor) -> torch.Tensor:
     """Robot 0's task as robot 1 sees it: running (1, 2), or just chosen (1, 2, 3 = Wait)."""
     return torch.where(task[:, 0] == 0, c0 + 1, task[:, 0])
 
 
-def _start(s: torch.Tensor, refill_prob: float) -> torch.Tensor:
+def choosing_start(s: torch.Tensor, refill_prob: float) -> torch.Tensor:
     """Both robots choose at the env's start states."""
     start = torch.zeros(len(s), dtype=torch.float64)
     first = exact_model(2, refill_prob).start_distribution()
@@ -150,7 +150,7 @@ def _start(s: torch.Tensor, refill_prob: float) -> torch.Tensor:
     return start
 
 
-def _gain_and_occupancy(nxt, prob, reward, start, iters: int = 200_000, tol: float = 1e-13):
+def gain_and_occupancy(nxt, prob, reward, start, iters: int = 200_000, tol: float = 1e-13):
     """Gain and long-run state occupancy of a chain ``nxt [Z, K]`` from ``start``."""
     src = torch.arange(len(start)).repeat_interleave(len(prob))
     dst, w = nxt.reshape(-1), prob.repeat(len(start))
@@ -163,7 +163,8 @@ def _gain_and_occupancy(nxt, prob, reward, start, iters: int = 200_000, tol: flo
     raise RuntimeError("the chain's distribution did not settle")
 
 
-def _digits(x: torch.Tensor, n: int) -> torch.Tensor:
+def task_digits(x: torch.Tensor, n: int) -> torch.Tensor:
+    """The base-3 task digits of ``x`` ``[N, n]`` (robot 0 first)."""
     powers = N_TASKS ** torch.arange(n - 1, -1, -1)
     return (x[:, None] // powers) % N_TASKS
 
@@ -174,10 +175,14 @@ def _number(d: torch.Tensor) -> torch.Tensor:
 
 
 __all__ = [
+    "choosing_start",
     "distances",
+    "fresh_task",
+    "gain_and_occupancy",
     "hierarchical_optimum",
     "hierarchy_model",
     "lower_action",
     "optimal_policy",
     "projected_gain",
+    "task_digits",
 ]

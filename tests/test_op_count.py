@@ -65,7 +65,8 @@ def test_ops_per_training_step_stay_within_budget(case):
 # a greedy evaluation step (no transitions: no sums kept, no transition masks;
 # hrl_torch.execution.executor ``sums``; while every row loops, no root decision to record and no
 # episode end to account): taxi MAXQ-Q, 4 episodes that all run to the time limit
-EVAL_BUDGET = 110  # 104 (145 before the evaluation agents kept no sums)
+EVAL_BUDGET = 116  # 110: 104 + the loop ring of issue 33 (hrl_torch.training.loops; 145 before
+# the evaluation agents kept no sums)
 
 
 def test_ops_per_greedy_evaluation_step_stay_within_budget(monkeypatch):

@@ -26,6 +26,7 @@ from hrl_torch.common.progress import progress_bar
 from hrl_torch.common.signals import stop_requested
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.training.deferred import defer_reads, deferred_meanwhile, raise_pending
+from hrl_torch.training.loops import LOOP_WINDOW, Loops, RecentStates, limit_note
 
 __all__ = [
     "MAX_DECISIONS",
@@ -52,6 +53,8 @@ class Evaluator:
         units: the unit of a plotted metric's axis, where its name does not say it.
         last_eval: further logged numbers of the latest evaluation (tag -> per learner).
         last_records: the latest evaluation's episodes (``None``: it plays none).
+        last_loops: per episode of ``last_records``, the cycle of observations an episode that
+            hit the step limit repeated (``hrl_torch.training.loops``; ``""`` for the others).
         last_steps: the latest evaluation's mean episode length per learner (``None``: none).
         last_partial: the signal (``"SIGTERM"``) that cut the latest evaluation short
             (``signals.stop_requested``), or ``None``: it ran to its end.
@@ -63,6 +66,7 @@ class Evaluator:
     units: ClassVar[Mapping[str, str]] = MappingProxyType({})
     last_eval: Mapping[str, list[float]] = MappingProxyType({})
     last_records: TensorDict | None = None
+    last_loops: list[str] | None = None
     last_steps: torch.Tensor | None = None
     last_partial: str | None = None
 
@@ -88,6 +92,10 @@ class Evaluator:
         """What ``summary.json`` adds for one learner."""
         return {}
 
+    def limit_note(self) -> str:
+        """What the progress line adds about the latest evaluation's episodes (``""``: none)."""
+        return ""
+
 
 class EpisodicEvaluator(Evaluator):
     """Mean return and success rate of one greedy episode per eval-env row (the default)."""
@@ -99,8 +107,8 @@ class EpisodicEvaluator(Evaluator):
         numbers are NaN. A signal (``signals.stop_requested``) ends the episodes within one
         step; ``last_partial`` then names it and the unfinished episodes count as truncated.
         """
-        records, self.last_partial = _episodes(trainer, learners)
-        self.last_records = records
+        records, self.last_partial, loops = _episodes(trainer, learners)
+        self.last_records, self._loops = records, loops
         n = trainer.eval_env.envs_per_learner
         means = [
             records["length"].view(-1, n).mean(1),
@@ -112,6 +120,13 @@ class EpisodicEvaluator(Evaluator):
             means = [m.masked_fill(skipped, float("nan")) for m in means]
         self.last_steps = means[0]
         return means[2], means[1]
+
+    _loops = None
+
+    @property
+    def last_loops(self) -> list[str] | None:
+        """Per episode of ``last_records``, the cycle it repeated if it hit the step limit."""
+        return None if self._loops is None else list(self._loops)
 
     @staticmethod
     def episodes(trainer, learners=None) -> TensorDict:
@@ -136,9 +151,35 @@ class EpisodicEvaluator(Evaluator):
         """
         return _episodes(trainer, learners)[0]
 
+    def limit_note(self) -> str:
+        """How many episodes hit the step limit, the first one's cycle (``loops.limit_note``)."""
+        if self.last_records is None:
+            return ""
+        return limit_note(self.last_records, self.last_loops or [])
 
-def _episodes(trainer, learners=None) -> tuple[TensorDict, str | None]:
-    """``EpisodicEvaluator.episodes`` and the signal that cut them short (``None``: none)."""
+    def summary(self, learner: int) -> dict:
+        """``final_eval_step_limit``: ``learner``'s latest episodes that hit the step limit.
+
+        Each ``{"episode": index, "loop": the cycle it repeated}``.
+        """
+        records = self.last_records
+        if records is None:
+            return {}
+        hit = (records["truncated"] & (records["learner"] == learner)).nonzero().flatten()
+        loops = self.last_loops or [""] * records.batch_size[0]
+        return {
+            "final_eval_step_limit": [
+                {"episode": int(records["episode"][r]), "loop": loops[r]} for r in hit.tolist()
+            ]
+        }
+
+
+def _episodes(trainer, learners=None) -> tuple[TensorDict, str | None, Loops | list[str]]:
+    """``EpisodicEvaluator.episodes``, the signal that cut them short, and the loops.
+
+    The signal is ``None`` when none did; the loops: per episode the cycle it looped in, if it
+    hit the step limit (``loops.loop_texts``).
+    """
     env, cfg = trainer.eval_env, trainer.config
     if env is None:
         raise ValueError("no evaluation env: give the Trainer an eval_env (eval_episodes > 0)")
@@ -152,14 +193,16 @@ def _episodes(trainer, learners=None) -> tuple[TensorDict, str | None]:
     if learners is not None and env.subset_safe:  # only these learners' rows play
         playing = _only(learners, trainer.P, agent, env, action, episodes)
         if playing is None:  # nothing to play
-            return episodes.records(start, trainer.env.seeds, env.envs_per_learner), None
+            records = episodes.records(start, trainer.env.seeds, env.envs_per_learner)
+            return records, None, episodes.loops
         agent, env, action = playing
     if static_shapes(env.device):  # (a read synchronises: the checks wait for the reads)
         with deferred_meanwhile(env, agent.executor) as checks:
             cut = _play(trainer, agent, env, action, episodes, checks)
     else:
         cut = _play(trainer, agent, env, action, episodes, None)
-    return episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner), cut
+    records = episodes.records(start, trainer.env.seeds, trainer.eval_env.envs_per_learner)
+    return records, cut, episodes.loops
 
 
 #: off the CPU, greedy episodes read the device (rows still playing, checks) every this many
@@ -278,6 +321,9 @@ class EvalEpisodes:
         self.live = torch.arange(batch_size, device=device)
         self.alive = batch_size  # rows of ``now`` still playing
         self.unread = False  # ``add`` has seen steps since it last counted ``alive``
+        self.recent = RecentStates()  # the last observations of each row (``loops``)
+        self.t = 0  # steps added
+        self.loops: Loops | list[str] = [""] * batch_size
 
     def _save(self) -> None:
         for k, v in self.now.items():
@@ -291,6 +337,7 @@ class EvalEpisodes:
         no read of the device; ``alive`` (returned) is then as of the last read.
         """
         now, playing = self.now, ~self.now["finished"]
+        self._remember(td, playing)
         now["return"] += reward * playing
         now["length"].add_(playing)
         ended = td["terminated"] | td["truncated"]
@@ -303,6 +350,21 @@ class EvalEpisodes:
         if read:
             self.alive = playing.shape[0] - int(now["finished"].sum())
         return self.alive
+
+    def _remember(self, td, playing: torch.Tensor) -> None:
+        """Keep the step's observation of each playing row at slot ``t % LOOP_WINDOW``.
+
+        ``t`` is the step's index: every row's episode starts at the evaluation's start, so a
+        row that still plays is at its own step ``t`` (two ops a step, no read of the device).
+        """
+        codes = self.recent.codes(td)
+        if "recent" not in self.now:  # (the fields are known at the first step)
+            shape = (self.all["return"].shape[0], LOOP_WINDOW, codes.shape[1])
+            self.all["recent"] = codes.new_full(shape, -1)
+            self.now["recent"] = self.all["recent"][self.live]
+        ring = self.now["recent"].select(1, self.t % LOOP_WINDOW)
+        ring.copy_(torch.where(playing[:, None], codes, ring))
+        self.t += 1
 
     def record_root_decisions(self, executor, graph: TaskGraph, read: bool = True) -> None:
         """After ``act``: the root's new child in each row still playing.
@@ -334,12 +396,15 @@ class EvalEpisodes:
         self._save()
         out = {k: v.cpu() for k, v in self.all.items()}
         row = torch.arange(out["return"].shape[0])
+        truncated = out["truncated"] | ~out["finished"]
+        if "recent" in out:  # (the texts are made when asked for: no reads here)
+            self.loops = Loops(out["recent"], out["length"], truncated, self.recent.names)
         fields = {
             "learner": row // n,
             "seed": torch.tensor(seeds).repeat_interleave(n),
             "episode": row % n,
             **{k: out[k] for k in ("return", "length", "success", "decisions", "n_decisions")},
-            "truncated": out["truncated"] | ~out["finished"],
+            "truncated": truncated,
             "start": start.exclude(*_STEP_FIELDS).cpu(),
         }
         return TensorDict(fields, batch_size=[row.shape[0]])

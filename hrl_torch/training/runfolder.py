@@ -21,10 +21,11 @@ from hrl_torch.training.runlog import EPISODE_COLUMNS, PROGRESS_HEADER
 FILES = frozenset(
     {".lock", "hparams.json", "summary.json", "progress.csv", "eval_episodes.csv", "checkpoint.pt"}
 )
-#: the headers each CSV may start with (eval_episodes.csv: begun before its ``partial`` column too)
+#: the headers each CSV may start with (eval_episodes.csv: begun before its ``loop`` and
+#: ``partial`` columns too)
 HEADERS = {
     "progress.csv": (PROGRESS_HEADER,),
-    "eval_episodes.csv": (",".join(EPISODE_COLUMNS) + "\n", ",".join(EPISODE_COLUMNS[:-1]) + "\n"),
+    "eval_episodes.csv": tuple(",".join(EPISODE_COLUMNS[:n]) + "\n" for n in (11, 10, 9)),
 }
 _SEED_FOLDER = re.compile(r"tb/seed_-?\d+")
 

@@ -7,7 +7,8 @@ Layout of ``runs/{domain}__{algo}__{timestamp}/``::
     progress.csv      long format, one row per (step, seed, metric): step,seed,metric,value
     eval_episodes.csv every greedy evaluation episode: step, seed, episode, return, length,
                       success, truncated, start (its reset observation), the root's decisions,
-                      partial (1: a signal cut that evaluation short)
+                      partial (1: a signal cut that evaluation short), loop (the cycle of
+                      observations an episode at the step limit repeated)
     <metric>.png      mean and 95% interval over seeds of each curve metric
     summary.json      per-seed final metrics, env steps, wall-clock, env-steps/s
     checkpoint.pt     the latest checkpoint (when checkpointing is on)
@@ -247,34 +248,41 @@ class RunLogger:
             self.trackers.log(step, per_seed)
 
     def log_episodes(
-        self, step: int, records, node_names: Sequence[str], partial: bool = False
+        self,
+        step: int,
+        records,
+        node_names: Sequence[str],
+        partial: bool = False,
+        loops: Sequence[str] | None = None,
     ) -> None:
         """Append one evaluation's episodes (``Trainer.evaluate_episodes``) to the CSV.
 
         ``eval_episodes.csv`` gets the start's fields and the root's decisions by name;
-        ``partial``: a signal cut the evaluation short (its ``partial`` column is 1; a file
-        begun before that column existed gets none).
+        ``partial``: a signal cut the evaluation short (its ``partial`` column is 1);
+        ``loops``: per episode, the cycle an episode that hit the step limit repeated
+        (``hrl_torch.training.loops``; the ``loop`` column). A file begun before a column
+        existed keeps its own columns.
         """
         new = not self.episodes_path.exists() or self.episodes_path.stat().st_size == 0
-        marked = new or _header(self.episodes_path).endswith(",partial")
+        columns = EPISODE_COLUMNS if new else tuple(_header(self.episodes_path).split(","))
         rows = []
         for r in range(records.batch_size[0]):
             n = int(records["n_decisions"][r])
             names = [node_names[int(k)] for k in records["decisions"][r, :n]]
-            rows.append(
-                (
-                    step,
-                    int(records["seed"][r]),
-                    int(records["episode"][r]),
-                    f"{float(records['return'][r]):.6g}",
-                    int(records["length"][r]),
-                    int(records["success"][r]),
-                    int(records["truncated"][r]),
-                    fields_text(records["start"][r]),
-                    " ".join(names) + (" ..." if n > len(names) else ""),
-                    *((int(partial),) if marked else ()),
-                )
-            )
+            row = {
+                "step": step,
+                "seed": int(records["seed"][r]),
+                "episode": int(records["episode"][r]),
+                "return": f"{float(records['return'][r]):.6g}",
+                "length": int(records["length"][r]),
+                "success": int(records["success"][r]),
+                "truncated": int(records["truncated"][r]),
+                "start": fields_text(records["start"][r]),
+                "decisions": " ".join(names) + (" ..." if n > len(names) else ""),
+                "partial": int(partial),
+                "loop": loops[r] if loops else "",
+            }
+            rows.append(tuple(row[c] for c in columns if c in row))
         with open_own(self.episodes_path, "a", newline="") as f:
             writer = csv.writer(f, lineterminator="\n")
             if new:
@@ -309,7 +317,7 @@ class RunLogger:
 PROGRESS_HEADER = "step,seed,metric,value\n"
 EPISODE_COLUMNS = (
     "step", "seed", "episode", "return", "length", "success", "truncated", "start", "decisions",
-    "partial",
+    "partial", "loop",
 )  # fmt: skip
 
 

@@ -273,12 +273,12 @@ class Trainer:
         self.counters.eval_seconds += self.eval_seconds
         cut = self.evaluator.last_partial  # a signal cut it short: logged, not on the curve
         if self.logger and self.last_eval_records is not None:
-            records, names = self.last_eval_records, self.graph.names
-            self.logger.log_episodes(self.step, records, names, partial=cut is not None)
+            records, loops = self.last_eval_records, self.evaluator.last_loops
+            self.logger.log_episodes(self.step, records, self.graph.names, cut is not None, loops)
         values = mean.tolist()
         if self.logger or self.config.progress:  # the result as it happens (CLI runs)
             line = eval_line(self.step, self.evaluator.tags[0], values, self.eval_seconds)
-            tqdm.write(line + (f" (partial: {cut})" if cut else ""))
+            tqdm.write(line + self.evaluator.limit_note() + (f" (partial: {cut})" if cut else ""))
         if cut is not None:
             self.partial_eval = {"step": self.step, "signal": cut, "values": values}
             return
