@@ -10,6 +10,7 @@ from tensordict import TensorDict
 
 import agents  # noqa: F401 (registers the built-in domains)
 from hrl_torch.env.multiagent_env import agent_rows
+from hrl_torch.hierarchy import field_tables
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import GraphError, Primitive, Subtask
 from hrl_torch.runs import registry
@@ -19,7 +20,7 @@ from hrl_torch.runs.experiment import RunOptions, build_trainer, field_sizes
 def _trainer(domain: str, algo: str, tables: bool, monkeypatch, steps: int = 0):
     with monkeypatch.context() as m:
         if not tables:
-            m.setattr(TaskGraph, "FIELD_TABLES_MIN_CALLS", 10**9)
+            m.setattr(field_tables, "MIN_CALLS", 10**9)
         opts = RunOptions(
             seeds=[0, 1], envs_per_learner=2, progress=False, tensorboard=False, check_env=False
         )

@@ -202,3 +202,35 @@ class FieldTables(nn.Module):
             if not 0 <= v < n:
                 return f"observation field {f!r} is {v} in env row {row}, outside [0, {n})"
         return None
+
+
+#: a lookup costs about the ops of this many predicate calls: fewer are left as calls
+MIN_CALLS = 16
+
+
+def tabulate_fields(graph, sizes: Mapping[str, int], limit: int = 1 << 17) -> int:
+    """Look up the predicates of ``graph``'s nodes that read only sized fields; how many.
+
+    ``TaskGraph.tabulate_fields``. ``sizes``: discrete observation fields and their sizes
+    (values in ``[0, n)``, e.g. an env's ``observation_sizes``). A node whose predicates read
+    only such fields, with at most ``limit`` combinations of their values, is evaluated once
+    over all of them; ``context`` then looks its abstract state, termination, initiation and
+    child mask up instead of calling them: the same values. The other nodes are called as
+    before. Fewer than ``MIN_CALLS`` calls saved are not worth a lookup: nothing changes.
+    Idempotent; a graph tabulated by state (``TaskGraph.tabulate``) is left alone.
+    """
+    if graph.table_key is not None or graph.field_tables is not None:
+        return 0 if graph.field_tables is None else graph.field_tables.n_tabulated
+    tables = FieldTables(graph, sizes, limit)
+    done = set(tables.nodes.tolist())
+    names = ("_abstract_nodes", "_terminating_nodes", "_initiable_nodes")
+    lists = [getattr(graph, name) for name in names]
+    calls = sum(len(done & set(x[0])) for x in lists) + len(done & set(graph._mask_nodes))
+    if calls < MIN_CALLS:
+        return 0
+    graph.field_tables = tables.to(graph.node_children.device)
+    for name, nodes in zip(names, lists, strict=True):
+        kept = [k for k in nodes[0] if k not in done]
+        setattr(graph, name, (kept, nodes[1], torch.tensor(kept, dtype=torch.long)))
+    graph._mask_nodes = [k for k in graph._mask_nodes if k not in done]
+    return tables.n_tabulated

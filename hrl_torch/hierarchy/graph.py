@@ -21,7 +21,7 @@ from torch import nn
 
 from hrl_torch.common.devices import KeepsHostCopies, defined_at, same_device
 from hrl_torch.common.ops import columns, lookup
-from hrl_torch.hierarchy.field_tables import FieldTables
+from hrl_torch.hierarchy.field_tables import FieldTables, tabulate_fields
 from hrl_torch.hierarchy.graph_compile import compile_instances, compile_nodes, validate
 from hrl_torch.hierarchy.subtask import (  # noqa: F401  (Subtask, Primitive, GraphError: re-exported)
     GraphError,
@@ -115,7 +115,7 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             *self._abstract_nodes[0], *self._terminating_nodes[0], *self._initiable_nodes[0],
             *self._mask_nodes,
         }  # fmt: skip
-        self.field_tables: FieldTables | None = None  # (``tabulate_fields``)
+        self.field_tables: FieldTables | None = None  # (``field_tables.tabulate_fields``)
         self.action_dim = max((x.action_dim for x in self.nodes if x.is_primitive), default=0)
         self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
         self.max_features = max((x.n_features for x in self.nodes), default=0)
@@ -151,6 +151,8 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         return [k for k, x in enumerate(self.nodes) if not x.is_primitive]
 
     # ------------------------------------------------------------------ per-step evaluation
+    tabulate_fields = tabulate_fields  # (hrl_torch.hierarchy.field_tables)
+
     def tabulate(self, observations: TensorDict, key: str = "observation") -> None:
         """Compute the context of every state once; ``context`` then only looks it up.
 
@@ -182,39 +184,6 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         composite = ~self.node_is_primitive
         self.never_stuck = bool(ctx.available.any(-1)[:, composite].all())
 
-    #: a lookup costs about the ops of this many predicate calls: fewer are left as calls
-    FIELD_TABLES_MIN_CALLS = 16
-
-    def tabulate_fields(self, sizes: dict[str, int], limit: int = 1 << 17) -> int:
-        """Look up the predicates of every node that reads only sized fields; how many.
-
-        ``sizes``: discrete observation fields and their sizes (values in ``[0, n)``, e.g.
-        an env's ``observation_sizes``). A node whose predicates read only such fields, with
-        at most ``limit`` combinations of their values, is evaluated once over all of them
-        (``hrl_torch.hierarchy.field_tables``); ``context`` then looks its abstract state,
-        termination, initiation and child mask up instead of calling them: the same values.
-        The other nodes are called as before. Fewer than ``FIELD_TABLES_MIN_CALLS`` calls saved
-        are not worth a lookup: nothing changes. Idempotent; a tabulated graph is left alone.
-        """
-        if self._table_key is not None or self.field_tables is not None:
-            return 0 if self.field_tables is None else self.field_tables.n_tabulated
-        tables = FieldTables(self, sizes, limit)
-        if self._calls_of(tables.nodes.tolist()) < self.FIELD_TABLES_MIN_CALLS:
-            return 0
-        self.field_tables = tables.to(self.node_children.device)
-        done = set(tables.nodes.tolist())
-        for name in ("_abstract_nodes", "_terminating_nodes", "_initiable_nodes"):
-            kept = [k for k in getattr(self, name)[0] if k not in done]
-            setattr(self, name, (kept, list(range(self.n_nodes)), torch.tensor(kept).long()))
-        self._mask_nodes = [k for k in self._mask_nodes if k not in done]
-        return tables.n_tabulated
-
-    def _calls_of(self, nodes: list[int]) -> int:
-        """How many predicate calls ``context`` makes for ``nodes``."""
-        lists = (self._abstract_nodes, self._terminating_nodes, self._initiable_nodes)
-        per_list = sum(len(set(nodes) & set(x[0])) for x in lists)
-        return per_list + len(set(nodes) & set(self._mask_nodes))
-
     @property
     def table_key(self) -> str | None:
         """The observation field ``tabulate`` indexed its tables by (``None``: not tabulated)."""
@@ -239,7 +208,7 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             return self._tabulated_context(obs, learner)
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
-        abstract, terminated, initiable, mask = self._predicates(obs, memory, b, device)
+        abstract, terminated, initiable, mask = _predicates(self, obs, memory, b, device)
         blocked = terminated & ~self.node_event
         available = self._available(obs, initiable & ~blocked)
         if mask is not None:  # the tabulated nodes' child masks
@@ -253,30 +222,6 @@ class TaskGraph(KeepsHostCopies, nn.Module):
                 node = self.nodes[k]
                 features[:, k, : node.n_features] = self._call(node.features, obs, memory, k)
         return StepContext(obs, learner, abstract, terminated, blocked, available, features)
-
-    def _predicates(self, obs: TensorDict, memory, b: int, device):
-        """``[B, N]`` abstract, terminated, initiable, and the field tables' masks (or None).
-
-        The nodes' calls, with the field tables' columns (``tabulate_fields``) looked up.
-        """
-
-        def called(nodes, dtype, default, method, *extra):
-            value_of = _on_device(self, device, method, obs, *extra)
-            return self._node_columns(nodes, dtype, default, b, device, value_of)
-
-        tables, looked_up = self.field_tables, (None,) * 4
-        abstract = called(self._abstract_nodes, torch.long, 0, "abstract")
-        if tables is not None:  # one batch of ops for every tabulated node
-            looked_up = tables.lookup(obs)
-            abstract.index_copy_(1, tables.nodes, looked_up[0])
-        if self.check_ranges:
-            self._check_abstract_ranges(abstract, obs)
-        terminated = called(self._terminating_nodes, torch.bool, False, "terminated", memory)
-        initiable = called(self._initiable_nodes, torch.bool, True, "initiable")
-        if tables is not None:
-            terminated.index_copy_(1, tables.nodes, looked_up[1])
-            initiable.index_copy_(1, tables.nodes, looked_up[2])
-        return abstract, terminated, initiable, looked_up[3]
 
     def _tabulated_context(self, obs: TensorDict, learner: torch.Tensor) -> StepContext:
         """``context`` of a tabulated graph: every field looked up by the state."""
@@ -428,6 +373,31 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             if value is not None:
                 out[:, k] = value
         return out
+
+
+def _predicates(self: TaskGraph, obs: TensorDict, memory, b: int, device):
+    """``[B, N]`` abstract, terminated, initiable, and the field tables' masks (or None).
+
+    The nodes' calls, with the field tables' columns (``tabulate_fields``) looked up.
+    """
+
+    def called(nodes, dtype, default, method, *extra):
+        value_of = _on_device(self, device, method, obs, *extra)
+        return self._node_columns(nodes, dtype, default, b, device, value_of)
+
+    tables, looked_up = self.field_tables, (None,) * 4
+    abstract = called(self._abstract_nodes, torch.long, 0, "abstract")
+    if tables is not None:  # one batch of ops for every tabulated node
+        looked_up = tables.lookup(obs)
+        abstract.index_copy_(1, tables.nodes, looked_up[0])
+    if self.check_ranges:
+        self._check_abstract_ranges(abstract, obs)
+    terminated = called(self._terminating_nodes, torch.bool, False, "terminated", memory)
+    initiable = called(self._initiable_nodes, torch.bool, True, "initiable")
+    if tables is not None:
+        terminated.index_copy_(1, tables.nodes, looked_up[1])
+        initiable.index_copy_(1, tables.nodes, looked_up[2])
+    return abstract, terminated, initiable, looked_up[3]
 
 
 def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=None):
