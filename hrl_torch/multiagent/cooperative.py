@@ -373,7 +373,7 @@ class MultiAgentAgent(HierarchicalAgent):
         if self._in_order:  # observe as before, then choose in agent order
             ctx = self.context(rows)  # (the choices reuse it where no code changes)
             batch = self.executor.observe(rows, ctx, transitions=self.transitions)
-            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx)
+            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx, batch)
             self.batch = batch if batch is None else with_values(batch, ctx)
         else:
             action, batch = super().decide(rows)
