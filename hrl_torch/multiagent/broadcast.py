@@ -106,10 +106,11 @@ def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.T
     if n == 1:
         return torch.zeros_like(agent.executor.learner)
     order = agent.other_agents  # [n, n - 1]
-    earlier = order < torch.arange(n, device=order.device)[:, None]
-    others = torch.where(earlier, final[:, order], post[:, order])  # [B, n, n - 1]
-    weights = level.radix ** torch.arange(n - 1, device=post.device)
-    return (others * weights).sum(-1).view(-1)
+    if final is post:  # (before any choice: every other agent's code after the pops)
+        others = post[:, order]
+    else:
+        others = torch.where(agent.earlier_others, final[:, order], post[:, order])
+    return (others * level.weights).sum(-1).view(-1)  # [B, n, n - 1] -> [B * n]
 
 
 def choose_in_order(agent, rows, fixed: dict, ctx=None, batch=None) -> tuple[torch.Tensor, object]:
@@ -117,7 +118,7 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None, batch=None) -> tuple[tor
 
     ``rows``: the step as agent rows (``MultiAgentAgent._rows``); ``fixed``: the levels whose
     codes are not broadcast (a communicating level's replies), by index, kept as in ``rows``;
-    ``ctx``: the evaluated context of ``rows``, used as it is where no code changed;
+    ``ctx``: the context of ``rows`` (evaluated or not), used as it is where no code changed;
     ``batch``: the step's transitions (``None``: none, nothing reads the targets' context).
     Returns the actions ``[B * n]`` and the context whose values the learning targets read
     (each row's codes as it saw them when choosing; ``targets_needed``).
@@ -134,6 +135,8 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None, batch=None) -> tuple[tor
     stop_early = cpu if STATIC_ROUNDS is None else not STATIC_ROUNDS
     if ctx is None or not stop_early or _changed(agent, rows, used):
         ctx = recoded(agent, ctx, _with_codes(agent, rows, used))
+    elif not ctx.values:  # (``rows``' codes are the ones seen: evaluate ``ctx`` itself)
+        ctx = agent.evaluated(ctx)
     action = ex.act(ctx, agent.policy, agent.schedule_clock)
     invoked = ex.invoked
     for _ in range(n - 1):
