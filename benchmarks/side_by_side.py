@@ -11,8 +11,8 @@
   ``train_seconds`` (summary.json) and the ratio of the medians. A checkout from before
   0.2.0's subpackages (``hrl_torch/cli.py``) runs as ``python -m hrl_torch.cli``.
 - ``eval``: ``four-agv`` Cooperative HRL trained 2,000 steps (1 seed), then one greedy
-  throughput evaluation capped at ``--steps`` event steps, in each checkout (0.2.0 layout
-  only); prints its seconds and its numbers (they must be equal).
+  throughput evaluation capped at ``--steps`` event steps, in each checkout (0.1's flat
+  layout and its ``four-agv-text`` name too); prints its wall and CPU seconds and its numbers.
 - ``ops``: aten ops per greedy evaluation step of the same four-agv run (200 steps), in
   each checkout (deterministic, unlike the seconds on a shared machine).
 - ``hashes``: SHA-256 of the learner's tables after 80 steps (2 seeds x 4 envs) of every
@@ -36,19 +36,27 @@ EVAL = r"""
 import json, sys, time, torch
 torch.set_num_threads(1)
 import agents  # noqa: F401
-from hrl_torch.runs import registry
-from hrl_torch.runs.experiment import RunOptions, build_trainer
+try:
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
+except ImportError:  # (0.1's flat layout, e.g. f3a1bd5)
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+try:  # (0.1 called the text's set-up four-agv-text)
+    DOMAIN = registry.get("four-agv-text")
+except Exception:
+    DOMAIN = registry.get("four-agv")
 opts = RunOptions(seeds=[0], steps=2000, progress=False, tensorboard=False, check_env=False)
-trainer = build_trainer(registry.get("four-agv"), "cooperative", opts)
+trainer = build_trainer(DOMAIN, "cooperative", opts)
 trainer.eval_env, eval_env = None, trainer.eval_env  # train only
 trainer.train()
 trainer.eval_env = eval_env
 trainer.evaluator.max_steps = int(sys.argv[1])
 trainer.evaluator.burn_in_time = 0.0  # (a capped window that counts from the start)
-start = time.perf_counter()
+start, cpu = time.perf_counter(), time.process_time()
 values = trainer.evaluator.evaluate(trainer)
-seconds = time.perf_counter() - start
-print(json.dumps({"seconds": seconds, "values": repr([v.tolist() for v in values])}))
+seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+print(json.dumps({"seconds": seconds, "cpu": cpu, "values": repr([v.tolist() for v in values])}))
 """
 
 OPS = r"""
@@ -56,15 +64,23 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 torch.set_num_threads(1)
 import agents  # noqa: F401
-from hrl_torch.runs import registry
-from hrl_torch.runs.experiment import RunOptions, build_trainer
+try:
+    from hrl_torch.runs import registry
+    from hrl_torch.runs.experiment import RunOptions, build_trainer
+except ImportError:  # (0.1's flat layout, e.g. f3a1bd5)
+    from hrl_torch import registry
+    from hrl_torch.experiment import RunOptions, build_trainer
+try:  # (0.1 called the text's set-up four-agv-text)
+    DOMAIN = registry.get("four-agv-text")
+except Exception:
+    DOMAIN = registry.get("four-agv")
 class Count(TorchDispatchMode):
     count = 0
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         self.count += 1
         return func(*args, **(kwargs or {}))
 opts = RunOptions(seeds=[0], steps=200, progress=False, tensorboard=False, check_env=False)
-trainer = build_trainer(registry.get("four-agv"), "cooperative", opts)
+trainer = build_trainer(DOMAIN, "cooperative", opts)
 trainer.eval_env, eval_env = None, trainer.eval_env
 trainer.train()
 trainer.eval_env = eval_env
@@ -150,7 +166,10 @@ def main() -> None:
     else:
         results = {name: greedy_evaluation(c, args.steps or 3_000) for name, c in sides.items()}
         for name, r in results.items():
-            print(f"{name} ({sides[name]}): {r['seconds']:.1f} s, numbers {r['values']}")
+            print(
+                f"{name} ({sides[name]}): {r['seconds']:.1f} s ({r['cpu']:.1f} s CPU), "
+                f"numbers {r['values']}"
+            )
         same = results["old"]["values"] == results["new"]["values"]
         speedup = results["old"]["seconds"] / results["new"]["seconds"]
         print(f"old / new: {speedup:.2f}x, same numbers: {same}")

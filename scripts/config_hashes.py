@@ -52,7 +52,7 @@ def tables_hash(domain, algo: str, steps: int) -> str:
     for key, tensor in sorted(trainer.learner.state_dict().items()):
         if isinstance(tensor, torch.Tensor):
             h.update(key.encode())
-            h.update(tensor.detach().cpu().reshape(-1).contiguous().view(torch.uint8).numpy().tobytes())
+            h.update(tensor.detach().cpu().contiguous().reshape(-1).view(torch.uint8).numpy().tobytes())
     return h.hexdigest()[:16]
 
 

@@ -6,9 +6,12 @@ is the root's start state (the root has one state of its own, so its abstract st
 others' ``U_1`` code: 0 TaskA, 1 TaskB, 2 Wait, 3 none).
 """
 
+import hashlib
+
 import pytest
 import torch
 
+import agents  # noqa: F401 (registers the built-in domains)
 from hrl_torch.learners import MaxQLearner
 from hrl_torch.modules.exploration import EpsilonGreedy
 from hrl_torch.multiagent.cooperative import (
@@ -17,6 +20,8 @@ from hrl_torch.multiagent.cooperative import (
     agent_rng,
     cooperative_graph,
 )
+from hrl_torch.runs import registry
+from hrl_torch.runs.experiment import RunOptions, build_trainer
 from tests.test_multiagent import AgentIndexPolicy, Clock, graph
 
 NONE, TASK_A, TASK_B = 3, 0, 1
@@ -96,7 +101,6 @@ def test_sequential_targets_read_the_root_value_at_the_seen_code(broadcast):
 @pytest.mark.parametrize("domain", ["trash", "two-taxi-earlier", "four-agv-earlier"])
 def test_static_rounds_learn_the_tables_of_early_stopping(domain, monkeypatch):
     """All n - 1 re-choosing rounds (no host read) equal stopping when no code changed."""
-    import agents  # noqa: F401
     import hrl_torch.multiagent.broadcast
     from hrl_torch.runs import registry
     from hrl_torch.runs.experiment import RunOptions, build_trainer
@@ -126,7 +130,6 @@ def test_recoded_contexts_learn_the_tables_of_contexts_computed_anew(domain, alg
     5d95f490672a2e41, 2e06772f7b78ef26, 3cd4140a57b3ca38, d984a93661f524d0, 284cd707ea11ad5c,
     and so they do after it: ``benchmarks/side_by_side.py hashes``.)
     """
-    import agents  # noqa: F401
     import hrl_torch.multiagent.broadcast
     from hrl_torch.runs import registry
     from hrl_torch.runs.experiment import RunOptions, build_trainer
@@ -142,3 +145,21 @@ def test_recoded_contexts_learn_the_tables_of_contexts_computed_anew(domain, alg
         tables[recode] = trainer.learner.state_dict()
     for key, value in tables[False].items():
         assert torch.equal(value, tables[True][key]), key
+
+
+def test_trash_cooperative_learns_the_tables_it_learned_before_the_step_was_cut():
+    # issue 38: one evaluation before the choices, the targets' context only where a learning
+    # level reads it; the learner's state after 150 steps of 2 seeds x 4 envs hashes as it did
+    # on f3a1bd5 (and on bf82c46's successors up to 703849c)
+    opts = RunOptions(
+        seeds=[0, 1], envs_per_learner=4, progress=False, tensorboard=False, check_env=False
+    )
+    opts.eval_episodes = 0
+    trainer = build_trainer(registry.get("trash"), "cooperative", opts)
+    for _ in range(150):
+        trainer.train_step()
+    h = hashlib.sha256()
+    for key, value in sorted(trainer.learner.state_dict().items()):
+        h.update(key.encode())
+        h.update(value.detach().contiguous().reshape(-1).view(torch.uint8).numpy().tobytes())
+    assert h.hexdigest()[:16] == "98b634108d725701"

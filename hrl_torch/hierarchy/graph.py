@@ -21,6 +21,7 @@ from torch import nn
 
 from hrl_torch.common.devices import KeepsHostCopies, defined_at, same_device
 from hrl_torch.common.ops import columns, lookup
+from hrl_torch.hierarchy.field_tables import FieldTables, tabulate_fields
 from hrl_torch.hierarchy.graph_compile import compile_instances, compile_nodes, validate
 from hrl_torch.hierarchy.subtask import (  # noqa: F401  (Subtask, Primitive, GraphError: re-exported)
     GraphError,
@@ -106,6 +107,15 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         self._initiable_nodes = self._custom(
             lambda x: not x.is_primitive and overrides(x, "initiable")
         )
+        self._mask_nodes = [
+            k for k, x in enumerate(self.nodes) if not x.is_primitive and overrides(x, "child_mask")
+        ]
+        #: nodes whose predicates ``context`` calls (the others' are constant columns)
+        self.called_nodes = {
+            *self._abstract_nodes[0], *self._terminating_nodes[0], *self._initiable_nodes[0],
+            *self._mask_nodes,
+        }  # fmt: skip
+        self.field_tables: FieldTables | None = None  # (``field_tables.tabulate_fields``)
         self.action_dim = max((x.action_dim for x in self.nodes if x.is_primitive), default=0)
         self.feature_nodes = [k for k, x in enumerate(self.nodes) if x.n_features]
         self.max_features = max((x.n_features for x in self.nodes), default=0)
@@ -141,6 +151,8 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         return [k for k, x in enumerate(self.nodes) if not x.is_primitive]
 
     # ------------------------------------------------------------------ per-step evaluation
+    tabulate_fields = tabulate_fields  # (hrl_torch.hierarchy.field_tables)
+
     def tabulate(self, observations: TensorDict, key: str = "observation") -> None:
         """Compute the context of every state once; ``context`` then only looks it up.
 
@@ -196,34 +208,13 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             return self._tabulated_context(obs, learner)
         if memory is None and self.memory_nodes:
             memory = torch.zeros(b, self.n_nodes, self.max_memory, device=device)
-        abstract = self._node_columns(
-            self._abstract_nodes,
-            torch.long,
-            0,
-            b,
-            device,
-            _on_device(self, device, "abstract", obs),
-        )
-        if self.check_ranges:
-            self._check_abstract_ranges(abstract)
-        terminated = self._node_columns(
-            self._terminating_nodes,
-            torch.bool,
-            False,
-            b,
-            device,
-            _on_device(self, device, "terminated", obs, memory),
-        )
-        initiable = self._node_columns(
-            self._initiable_nodes,
-            torch.bool,
-            True,
-            b,
-            device,
-            _on_device(self, device, "initiable", obs),
-        )
+        abstract, terminated, initiable, mask = _predicates(self, obs, memory, b, device)
         blocked = terminated & ~self.node_event
         available = self._available(obs, initiable & ~blocked)
+        if mask is not None:  # the tabulated nodes' child masks
+            tables = self.field_tables
+            narrowed = available.index_select(1, tables.nodes) & mask
+            available.index_copy_(1, tables.nodes, narrowed)
         features = None
         if self.feature_nodes:
             features = torch.zeros(b, self.n_nodes, self.max_features, device=device)
@@ -257,8 +248,11 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             table_row=s,
         )
 
-    def _check_abstract_ranges(self, abstract: torch.Tensor) -> None:
-        """Every abstract state inside its node's ``[0, n_states)``, else a ``GraphError``."""
+    def _check_abstract_ranges(self, abstract: torch.Tensor, obs: TensorDict) -> None:
+        """Every abstract state inside its node's ``[0, n_states)``, else a ``GraphError``.
+
+        (A field out of its size reads -1 from the field tables: the error names the field.)
+        """
         bad = (abstract < 0) | (abstract >= self.node_n_states)
         deferred = self.__dict__.get("deferred_ranges")  # (hrl_torch.training.deferred: no read)
         if deferred is not None and deferred.takes(bad):
@@ -266,6 +260,11 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             return
         if bool(bad.any()):
             row, col = (int(v) for v in bad.nonzero()[0])
+            outside = (
+                None if self.field_tables is None else self.field_tables.field_outside(obs, row)
+            )
+            if outside is not None:
+                raise GraphError(outside + " (the field tables' sizes, tabulate_fields)")
             raise GraphError(
                 f"{self.names[col]!r}.abstract returned {int(abstract[row, col])}, outside "
                 f"[0, {self.nodes[col].n_states}) (env row {row})"
@@ -278,10 +277,8 @@ class TaskGraph(KeepsHostCopies, nn.Module):
         node's ``child_mask`` narrows its children further.
         """
         available = columns(child_ok, self.node_children_0) & self.child_valid
-        for k, x in enumerate(self.nodes):
-            if x.is_primitive:
-                continue
-            mask = x.child_mask(obs)
+        for k in self._mask_nodes:
+            mask = self.nodes[k].child_mask(obs)
             if mask is not None:
                 available[:, k, : mask.shape[1]] &= mask.bool()
         return available
@@ -376,6 +373,31 @@ class TaskGraph(KeepsHostCopies, nn.Module):
             if value is not None:
                 out[:, k] = value
         return out
+
+
+def _predicates(self: TaskGraph, obs: TensorDict, memory, b: int, device):
+    """``[B, N]`` abstract, terminated, initiable, and the field tables' masks (or None).
+
+    The nodes' calls, with the field tables' columns (``tabulate_fields``) looked up.
+    """
+
+    def called(nodes, dtype, default, method, *extra):
+        value_of = _on_device(self, device, method, obs, *extra)
+        return self._node_columns(nodes, dtype, default, b, device, value_of)
+
+    tables, looked_up = self.field_tables, (None,) * 4
+    abstract = called(self._abstract_nodes, torch.long, 0, "abstract")
+    if tables is not None:  # one batch of ops for every tabulated node
+        looked_up = tables.lookup(obs)
+        abstract.index_copy_(1, tables.nodes, looked_up[0])
+    if self.check_ranges:
+        self._check_abstract_ranges(abstract, obs)
+    terminated = called(self._terminating_nodes, torch.bool, False, "terminated", memory)
+    initiable = called(self._initiable_nodes, torch.bool, True, "initiable")
+    if tables is not None:
+        terminated.index_copy_(1, tables.nodes, looked_up[1])
+        initiable.index_copy_(1, tables.nodes, looked_up[2])
+    return abstract, terminated, initiable, looked_up[3]
 
 
 def _on_device(graph: TaskGraph, device, method: str, obs: TensorDict, memory=None):

@@ -64,6 +64,10 @@ class Learner(MovesTensorAttrs, nn.Module):
     #: tabulated graph a function of the row's learner and state, which lets a non-learning
     #: agent look them up (``FrozenValues``)
     values_per_state: bool = False
+    #: ``update`` reads ``batch["values"]`` only at the levels that learn (``finished``) and
+    #: nothing of ``batch["obs"]``: values elsewhere may be stale (the sequential broadcast
+    #: then skips a context for the targets that no learning level reads)
+    targets_at_finished_levels: bool = False
     #: ``instance_action_values(ctx)`` gives every instance's action values at once
     #: (``ValuePolicy`` then chooses for every chooser in one go)
     all_instances_at_once: bool = False

@@ -57,6 +57,7 @@ class MaxQLearner(TabularLearner):
 
     uses = frozenset()
     value_keys = ("V", "V_int", "Q")
+    targets_at_finished_levels = True  # (``update``: every read masked by ``finished``)
 
     def __init__(
         self,

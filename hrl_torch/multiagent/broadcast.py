@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import torch
 
-from hrl_torch.execution.transitions import ChoosesAll, SelectsRows
+from hrl_torch.execution.transitions import LEVEL, ChoosesAll, SelectsRows
+from hrl_torch.learners.base import finished
 
 
 class SameDraws:
@@ -94,7 +95,6 @@ def recoded(agent, ctx, rows):
     return new
 
 
-
 def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.Tensor:
     """The others' ``U_l`` code each agent row sees when it chooses in agent order ``[B * n]``.
 
@@ -106,20 +106,22 @@ def seen_codes(agent, level, post: torch.Tensor, final: torch.Tensor) -> torch.T
     if n == 1:
         return torch.zeros_like(agent.executor.learner)
     order = agent.other_agents  # [n, n - 1]
-    earlier = order < torch.arange(n, device=order.device)[:, None]
-    others = torch.where(earlier, final[:, order], post[:, order])  # [B, n, n - 1]
-    weights = level.radix ** torch.arange(n - 1, device=post.device)
-    return (others * weights).sum(-1).view(-1)
+    if final is post:  # (before any choice: every other agent's code after the pops)
+        others = post[:, order]
+    else:
+        others = torch.where(agent.earlier_others, final[:, order], post[:, order])
+    return (others * level.weights).sum(-1).view(-1)  # [B, n, n - 1] -> [B * n]
 
 
-def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, object]:
+def choose_in_order(agent, rows, fixed: dict, ctx=None, batch=None) -> tuple[torch.Tensor, object]:
     """Push children for every agent row, agents of one env row choosing in index order.
 
     ``rows``: the step as agent rows (``MultiAgentAgent._rows``); ``fixed``: the levels whose
     codes are not broadcast (a communicating level's replies), by index, kept as in ``rows``;
-    ``ctx``: the evaluated context of ``rows``, used as it is where no code changed.
+    ``ctx``: the context of ``rows`` (evaluated or not), used as it is where no code changed;
+    ``batch``: the step's transitions (``None``: none, nothing reads the targets' context).
     Returns the actions ``[B * n]`` and the context whose values the learning targets read
-    (each row's codes as it saw them when choosing).
+    (each row's codes as it saw them when choosing; ``targets_needed``).
     """
     ex, n = agent.executor, agent.n_agents
     acting, before = ex.acting, ex.stack.tensors()
@@ -133,6 +135,8 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
     stop_early = cpu if STATIC_ROUNDS is None else not STATIC_ROUNDS
     if ctx is None or not stop_early or _changed(agent, rows, used):
         ctx = recoded(agent, ctx, _with_codes(agent, rows, used))
+    elif not ctx.values:  # (``rows``' codes are the ones seen: evaluate ``ctx`` itself)
+        ctx = agent.evaluated(ctx)
     action = ex.act(ctx, agent.policy, agent.schedule_clock)
     invoked = ex.invoked
     for _ in range(n - 1):
@@ -142,19 +146,39 @@ def choose_in_order(agent, rows, fixed: dict, ctx=None) -> tuple[torch.Tensor, o
         for k, level in enumerate(agent.levels):
             redo |= invoked[:, level.depth + 1] & (codes[k] != used[k])
         if stop_early and not bool(redo.any()):
-            break
+            break  # (``codes`` are the final ones: no choice changes after this)
         now = ex.stack.tensors()
         ex.rewind(_restored(now, before, redo), redo if acting is None else redo & acting)
         ctx = recoded(agent, ctx, _with_codes(agent, rows, codes))
         action = ex.act(ctx, same_draws(agent.policy), agent.schedule_clock)
         invoked = torch.where(redo[:, None], ex.invoked, invoked)
         used = codes
+    else:
+        final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
+        codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
     ex.invoked = invoked
-    final = [agent.own_codes(level).view(-1, n) for level in agent.levels]
-    codes = [_codes(agent, k, post[k], final[k], rows, fixed) for k in range(len(final))]
-    if not stop_early or any(bool((c != u).any()) for c, u in zip(codes, used, strict=True)):
+    if not stop_early or targets_needed(agent, batch, codes, used):
         ctx = recoded(agent, ctx, _with_codes(agent, rows, codes))  # the targets' codes
     return action, ctx
+
+
+def targets_needed(agent, batch, codes: list, used: list) -> bool:
+    """Whether a learning target reads a value that the codes ``codes`` change (a host read).
+
+    The context holds the values at ``used``; a row whose codes differ now did not choose at
+    a cooperation level since (its choice would have been made again), so where the learner
+    reads values only at the levels that learn (``targets_at_finished_levels``) only its
+    levels at or above a cooperative subtask that learn this step read changed values. No
+    transitions (``batch`` ``None``, a greedy evaluation): none.
+    """
+    if batch is None:
+        return False
+    changed = [c != u for c, u in zip(codes, used, strict=True)]
+    if not agent.learner.targets_at_finished_levels:
+        return any(bool(c.any()) for c in changed)
+    top = max(level.depth for level in agent.levels) + 1
+    learning = finished(batch[LEVEL])[:, :top].any(1)
+    return any(bool((c & learning).any()) for c in changed)
 
 
 def _changed(agent, rows, codes: list[torch.Tensor]) -> bool:

@@ -190,6 +190,8 @@ class _Level:
     none: int  # the code of an agent without a U_l subtask
     radix: int  # values per other agent
     key: str
+    code_of_inst_1: torch.Tensor | None = None  # (``MultiAgentAgent``: per instance + 1)
+    weights: torch.Tensor | None = None  # (``MultiAgentAgent``: radix ** rank, ``[n - 1]``)
 
 
 def cooperative_graph(graph: TaskGraph, cooperation: Cooperation, n_agents: int) -> TaskGraph:
@@ -309,8 +311,15 @@ class MultiAgentAgent(HierarchicalAgent):
         others = [[k for k in range(n) if k != j] for j in range(n)]
         #: ``[n, n - 1]``: the other agents of each agent, in index order
         self.other_agents = torch.tensor(others, dtype=torch.long, device=dev).view(n, n - 1)
+        #: ``[n, n - 1]``: whether each of those comes before the agent (``broadcast``)
+        self.earlier_others = self.other_agents < torch.arange(n, device=dev)[:, None]
+        inst_node = graph.inst_node.to(dev)
         for level in self.levels:
             level.code_of_node = level.code_of_node.to(dev)
+            #: per instance + 1 (0: none) its node's code, and the others' place values
+            none = torch.full((1,), level.none, dtype=torch.long, device=dev)
+            level.code_of_inst_1 = torch.cat([none, level.code_of_node[inst_node]])
+            level.weights = level.radix ** torch.arange(n - 1, device=dev)
         self._pending = torch.zeros(b, dtype=torch.bool, device=dev)  # tau_any interruptions
         if scheme == "any":
             self.executor.interrupt = self._interrupt
@@ -371,9 +380,10 @@ class MultiAgentAgent(HierarchicalAgent):
         """Steps 1-4 on an env step ``[B]``: ``(actions [B, n], transitions of agent rows)``."""
         rows = self._rows(td)
         if self._in_order:  # observe as before, then choose in agent order
-            ctx = self.context(rows)  # (the choices reuse it where no code changes)
+            # (values after the pops: the codes the choices see may differ from ``rows``')
+            ctx = self.context(rows, values=False)
             batch = self.executor.observe(rows, ctx, transitions=self.transitions)
-            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx)
+            action, ctx = choose_in_order(self, rows, self._fixed_levels, ctx, batch)
             self.batch = batch if batch is None else with_values(batch, ctx)
         else:
             action, batch = super().decide(rows)
@@ -412,8 +422,7 @@ class MultiAgentAgent(HierarchicalAgent):
     def own_codes(self, level: _Level) -> torch.Tensor:
         """Each agent row's current ``U_l`` subtask (``level.none`` without one) ``[B * n]``."""
         child = self.executor.stack.inst[:, level.depth + 1]  # the cooperative node's child
-        node = torch.take(self.graph.inst_node, child.clamp_min(0))
-        return torch.where(child >= 0, torch.take(level.code_of_node, node), level.none)
+        return torch.take(level.code_of_inst_1, child + 1)  # (-1, no child: ``none``)
 
     def _others_code(self, level: _Level) -> torch.Tensor:
         """``sum_k code_k radix^rank(k)`` over the other agents of each agent row ``[B * n]``."""
@@ -427,8 +436,7 @@ class MultiAgentAgent(HierarchicalAgent):
         others = own[:, self.other_agents.view(-1)].view(-1, n, n - 1)  # [B, n, n - 1]
         if communicating:
             others = self._com.replies = self._com.lose(others, self.policy.rng)
-        weights = level.radix ** torch.arange(n - 1, device=own.device)
-        return (others * weights).sum(-1).view(-1)
+        return (others * level.weights).sum(-1).view(-1)
 
     def _end_communication(self, popped: torch.Tensor, ended_own: torch.Tensor) -> torch.Tensor:
         """A communication subtask lasts one ``U_l`` decision: cut it when its child ended.

@@ -176,6 +176,7 @@ def build_trainer(
             [domain.eval_seed] * len(seeds), config.eval_episodes, opts.backend, **spec.env_options
         )
     graph = spec.make_graph()  # built on the CPU (building reads data), then moved
+    graph.tabulate_fields(field_sizes(env))
     agents = None
     if env.n_agents is not None:  # table sets per seed and agent
         agents = MultiAgentFactory(env.n_agents, spec.multiagent or MultiAgentConfig())
@@ -223,6 +224,18 @@ def _run_config(domain, algo, opts, config, schedule_steps: int, n_envs: int) ->
         "version": __version__,
         "code": code_version(),
     }
+
+
+def field_sizes(env) -> dict[str, int]:
+    """The discrete fields of what the agent sees in ``env`` and their sizes.
+
+    The env's ``observation_sizes``; a multi-agent env's agent rows add its
+    ``agent_observation_sizes`` and ``agent`` (``hrl_torch.env.multiagent_env.agent_rows``).
+    """
+    sizes = dict(getattr(env, "observation_sizes", {}))
+    if getattr(env, "n_agents", None) is not None:
+        sizes.update(env.agent_observation_sizes, agent=env.n_agents)
+    return sizes
 
 
 def algo_spec(domain: DomainSpec, algo: str, opts: RunOptions) -> AlgoSpec:

@@ -214,9 +214,16 @@ class HierarchicalAgent:
         """Rows per learner ``E`` (the clock advances by ``E`` per learning step)."""
         return self.executor.envs_per_learner
 
-    def context(self, obs: TensorDict) -> StepContext:
-        """The graph's context at ``obs``, with the learner's values in ``ctx.values``."""
+    def context(self, obs: TensorDict, values: bool = True) -> StepContext:
+        """The graph's context at ``obs``, with the learner's values in ``ctx.values``.
+
+        ``values=False``: without them (``evaluated`` adds them later).
+        """
         ctx = self.graph.context(obs, self.rows, self.executor.memory)
+        return self.evaluated(ctx) if values else ctx
+
+    def evaluated(self, ctx: StepContext) -> StepContext:
+        """``ctx`` with the learner's values (looked up where they are frozen)."""
         if self.frozen is not None:
             self.frozen.fill(ctx)
         else:
