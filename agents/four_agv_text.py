@@ -55,6 +55,7 @@ from agents.four_agv import (
     step_cost,
 )
 from agents.four_agv_rules import DISPATCH_RULES, NO_JOB, lexicographic_argmax
+from envs.agv import AGVRewards
 from envs.four_agv import (
     BAYS,
     CAPACITY,
@@ -192,12 +193,16 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
     )
 
 
-def text_hierarchy(capacity: int = CAPACITY, root_levels: int = 3) -> TaskGraph:
+def text_hierarchy(
+    capacity: int = CAPACITY, root_levels: int = 3, root_idle: bool = False
+) -> TaskGraph:
     """Figure 6.3 with committed, waiting jobs and the buffer-level root (module docstring).
 
     The root's children are ``U_1 = {DM_1..4, DA_1..4}`` (the text's list; no ``Idle``: an AGV
     waits inside its job). Some job is always initiable: ``DM_i`` whenever the AGV is empty,
     the job it carries for otherwise. ``root_levels`` 2: the smaller root (``root_abstract``).
+    ``root_idle``: the root may also choose ``Idle`` (1 s, then it chooses again), which
+    commits the AGV to nothing, as the per-AGV rules wait (issue 33's untried list).
     """
     if root_levels not in (2, 3):
         raise ValueError(f"root_levels must be 2 or 3, got {root_levels}")
@@ -206,7 +211,7 @@ def text_hierarchy(capacity: int = CAPACITY, root_levels: int = 3) -> TaskGraph:
     navs = [Navigate(t) for t in NAV_TARGETS]
     root = Subtask(
         "Root",
-        [x.name for x in dm + da],
+        [x.name for x in dm + da] + (["Idle"] if root_idle else []),
         n_states=(2 * root_levels) ** N_STATIONS,
         abstract=lambda o: root_abstract(o, capacity, root_levels),
     )
@@ -320,13 +325,26 @@ def make_env(
     capacity: int = CAPACITY,
     timing: FourAGVTiming = TABLE_6_1,
     own_rewards: bool = False,
+    part_reward: float = 0.0,
 ) -> FourAGVEnv:
     """The four-AGV task with the team reward: every agent receives the team's assemblies.
 
     ``own_rewards``: each agent is paid for its own deliveries instead (their sum is the
-    team's; issue 33's untried list, measured in docs/reproduction.md).
+    team's; issue 33's untried list, measured in docs/reproduction.md). ``part_reward``: also
+    this much per part dropped at its workstation (``AGVRewards.part``). Every part dropped
+    into ``Di`` becomes one assembly (machines never discard), so in the long run parts and
+    assemblies come at the same rate and the gain is ``(1 + part_reward)`` times the
+    throughput: the average-reward optimal policies stay the same.
     """
-    return FourAGVEnv(seeds, envs_per_learner, n_agents, capacity, timing, own_rewards=own_rewards)
+    rewards = AGVRewards(part=part_reward)
+    return FourAGVEnv(
+        seeds, envs_per_learner, n_agents, capacity, timing, rewards, own_rewards=own_rewards
+    )
+
+
+def assemblies(td: TensorDict) -> torch.Tensor:
+    """The step's assemblies delivered ``[B]`` (the throughput's count, whatever the reward)."""
+    return td["assemblies_delivered"]
 
 
 def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
@@ -339,6 +357,7 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
         horizon_time=1_000.0,
         burn_in_time=200.0,
         max_steps=60_000,
+        metric=assemblies,
         scale=1_000.0,
         unit="assemblies per 1,000 s",
     )
