@@ -28,8 +28,14 @@ for comparison. The env is the same ``FourAGVEnv`` (Figure 6.2, Table 6.1); what
   26.) ``DM_i`` keeps ``100 x 9 x 4 x 2`` states (location, status, ``Di``, ``Wi``) and
   ``DA_i`` ``100 x 9 x 4`` (location, status, ``Pi``), the text's counts, which are exactly
   what their wait-or-act choices need.
-* **One team reward**: every agent receives the team's assemblies (``own_rewards=False``),
-  the text's shared utility, not its own deliveries.
+* **Rewards.** The env's default is one team reward (every agent receives the team's
+  assemblies). The registered 1 ms learners (``cooperative``, ``selfish``, ``single``) use
+  issue 33's measured settings instead (``SETTLING``, ``GAMMA_1MS``, ``OWN_DELIVERIES``):
+  each AGV is paid for its own deliveries, 1 per part dropped at its workstation and 1 per
+  assembly brought back (in the long run parts and assemblies come at the same rate, so the
+  gain is twice the throughput for every policy), per-entry step sizes ``max(1/n, 0.2)`` and
+  a discount of 0.8 per second. With them selfish HRL went from 55.0 to 158.8 (2 seeds,
+  docs/reproduction.md); the ``-2s`` learners keep the team reward, 0.2 and 0.97.
 * **Per-AGV dispatching rules** (Figure 6.7): each vehicle applies FCFS / HQF / NSF to its
   own view, with no reservations and no knowledge of the other vehicles' jobs, and commits to
   the job it picked until the delivery (``PerAGVRule``; like ``DA_i`` it drops a fetch whose
@@ -55,6 +61,7 @@ from agents.four_agv import (
     step_cost,
 )
 from agents.four_agv_rules import DISPATCH_RULES, NO_JOB, lexicographic_argmax
+from envs.agv import AGVRewards
 from envs.four_agv import (
     BAYS,
     CAPACITY,
@@ -76,7 +83,7 @@ from hrl_torch.common.config import Make
 from hrl_torch.hierarchy.graph import TaskGraph
 from hrl_torch.hierarchy.subtask import Subtask
 from hrl_torch.learners import RuleLearner
-from hrl_torch.modules.schedules import Linear
+from hrl_torch.modules.schedules import Linear, VisitCount
 from hrl_torch.multiagent.cooperative import Cooperation, MultiAgentConfig, cooperative_graph
 from hrl_torch.runs.domain import AlgoSpec, DomainSpec
 from hrl_torch.training.config import TrainConfig
@@ -192,12 +199,16 @@ def _deliver_assembly(i: int, capacity: int) -> Subtask:
     )
 
 
-def text_hierarchy(capacity: int = CAPACITY, root_levels: int = 3) -> TaskGraph:
+def text_hierarchy(
+    capacity: int = CAPACITY, root_levels: int = 3, root_idle: bool = False
+) -> TaskGraph:
     """Figure 6.3 with committed, waiting jobs and the buffer-level root (module docstring).
 
     The root's children are ``U_1 = {DM_1..4, DA_1..4}`` (the text's list; no ``Idle``: an AGV
     waits inside its job). Some job is always initiable: ``DM_i`` whenever the AGV is empty,
     the job it carries for otherwise. ``root_levels`` 2: the smaller root (``root_abstract``).
+    ``root_idle``: the root may also choose ``Idle`` (1 s, then it chooses again), which
+    commits the AGV to nothing, as the per-AGV rules wait (issue 33's untried list).
     """
     if root_levels not in (2, 3):
         raise ValueError(f"root_levels must be 2 or 3, got {root_levels}")
@@ -206,7 +217,7 @@ def text_hierarchy(capacity: int = CAPACITY, root_levels: int = 3) -> TaskGraph:
     navs = [Navigate(t) for t in NAV_TARGETS]
     root = Subtask(
         "Root",
-        [x.name for x in dm + da],
+        [x.name for x in dm + da] + (["Idle"] if root_idle else []),
         n_states=(2 * root_levels) ** N_STATIONS,
         abstract=lambda o: root_abstract(o, capacity, root_levels),
     )
@@ -320,13 +331,26 @@ def make_env(
     capacity: int = CAPACITY,
     timing: FourAGVTiming = TABLE_6_1,
     own_rewards: bool = False,
+    part_reward: float = 0.0,
 ) -> FourAGVEnv:
     """The four-AGV task with the team reward: every agent receives the team's assemblies.
 
     ``own_rewards``: each agent is paid for its own deliveries instead (their sum is the
-    team's; issue 33's untried list, measured in docs/reproduction.md).
+    team's; issue 33's untried list, measured in docs/reproduction.md). ``part_reward``: also
+    this much per part dropped at its workstation (``AGVRewards.part``). Every part dropped
+    into ``Di`` becomes one assembly (machines never discard), so in the long run parts and
+    assemblies come at the same rate and the gain is ``(1 + part_reward)`` times the
+    throughput: the average-reward optimal policies stay the same.
     """
-    return FourAGVEnv(seeds, envs_per_learner, n_agents, capacity, timing, own_rewards=own_rewards)
+    rewards = AGVRewards(part=part_reward)
+    return FourAGVEnv(
+        seeds, envs_per_learner, n_agents, capacity, timing, rewards, own_rewards=own_rewards
+    )
+
+
+def assemblies(td: TensorDict) -> torch.Tensor:
+    """The step's assemblies delivered ``[B]`` (the throughput's count, whatever the reward)."""
+    return td["assemblies_delivered"]
 
 
 def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
@@ -339,6 +363,7 @@ def throughput_evaluator(config: TrainConfig) -> ThroughputEvaluator:
         horizon_time=1_000.0,
         burn_in_time=200.0,
         max_steps=60_000,
+        metric=assemblies,
         scale=1_000.0,
         unit="assemblies per 1,000 s",
     )
@@ -353,9 +378,25 @@ def _per_agv_rule(name: str) -> Make:
     return Make(per_agv_rule_learner, rule=name)
 
 
-def _maxq(timing: FourAGVTiming = TABLE_6_1, alpha: float | Linear = 0.2) -> Make:
-    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``."""
-    return Make(maxq_learner, timing=timing, alpha=alpha)
+def _maxq(
+    timing: FourAGVTiming = TABLE_6_1,
+    alpha: float | Linear | VisitCount = 0.2,
+    gamma: float | None = None,
+) -> Make:
+    """MAXQ-Q for the primitives' ``timing`` (``internal_init``), step size ``alpha``.
+
+    ``gamma``: the discount per second (``None``: ``maxq_learner``'s, ``GAMMA``).
+    """
+    extra = {} if gamma is None else {"gamma": gamma}
+    return Make(maxq_learner, timing=timing, alpha=alpha, **extra)
+
+
+#: issue 33's measured changes for 1 ms moves (docs/reproduction.md, "one change at a time"):
+#: a per-entry step size that settles, 0.8 per second, each AGV paid for its own deliveries,
+#: parts as well as assemblies (the same long-run rate: ``make_env``)
+SETTLING = VisitCount(0.2)
+GAMMA_1MS = 0.8
+OWN_DELIVERIES = {"own_rewards": True, "part_reward": 1.0}
 
 
 def _algos() -> dict[str, AlgoSpec]:
@@ -366,10 +407,17 @@ def _algos() -> dict[str, AlgoSpec]:
         return cooperative_graph(text_hierarchy(), COOPERATION, 4)
 
     slow = {"timing": FIGURE_6_5}
+    fast = _maxq(alpha=SETTLING, gamma=GAMMA_1MS)
     algos = {
-        "cooperative": spec(coop, _maxq(), "Cooperative HRL, team reward (Algorithm 4)", joint),
-        "selfish": spec(text_hierarchy, _maxq(), "selfish multi-agent HRL, team reward"),
-        "single": spec(text_hierarchy, _maxq(), "single-agent HRL: one AGV", n_agents=1),
+        "cooperative": spec(
+            coop, fast, "Cooperative HRL, own deliveries (Algorithm 4)", joint, **OWN_DELIVERIES
+        ),
+        "selfish": spec(
+            text_hierarchy, fast, "selfish multi-agent HRL, own deliveries", **OWN_DELIVERIES
+        ),
+        "single": spec(
+            text_hierarchy, fast, "single-agent HRL: one AGV", n_agents=1, **OWN_DELIVERIES
+        ),
         "cooperative-2s": spec(
             coop, _maxq(FIGURE_6_5), "Cooperative HRL, 2 s primitives (Figure 6.5)", joint, **slow
         ),

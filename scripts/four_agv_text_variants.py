@@ -18,10 +18,11 @@ import time
 from dataclasses import replace
 
 import torch
+from four_agv_where_time_goes import trainer_time_shares
 
 import agents  # noqa: F401  (registers the domains)
 from agents.four_agv import GAMMA
-from agents.four_agv_text import text_hierarchy
+from agents.four_agv_text import assemblies, text_hierarchy
 from hrl_torch.modules.schedules import VisitCount
 from hrl_torch.runs import registry
 from hrl_torch.runs.experiment import RunOptions, build_trainer
@@ -41,10 +42,15 @@ def run(args, algo: str, learn: bool) -> dict:
     spec = dom.algos[algo]
     steps = args.steps if learn else 1
     learner = spec.learner
-    if args.small_root:  # (selfish/single: the plain text graph with a 256-state root)
-        spec = replace(spec, make_graph=lambda: text_hierarchy(root_levels=2))
+    levels = 2 if args.small_root else 3
+    if args.small_root or args.root_idle:  # (selfish/single: the plain text graph changed)
+        spec = replace(
+            spec, make_graph=lambda: text_hierarchy(root_levels=levels, root_idle=args.root_idle)
+        )
     if args.own_rewards:
         spec = replace(spec, env_options={**spec.env_options, "own_rewards": True})
+    if args.part_reward:
+        spec = replace(spec, env_options={**spec.env_options, "part_reward": args.part_reward})
     if learn:
         learner = learner.with_argument("alpha", _alpha(args.alpha))
         learner = learner.with_argument("gamma", args.gamma)
@@ -53,6 +59,7 @@ def run(args, algo: str, learn: bool) -> dict:
         horizon_time=args.window,
         burn_in_time=args.burn_in,
         max_steps=args.max_steps,
+        metric=assemblies,
         scale=1_000.0,
         unit="assemblies per 1,000 s",
     )
@@ -66,9 +73,14 @@ def run(args, algo: str, learn: bool) -> dict:
     trainer = build_trainer(dom, algo, opts)
     result = trainer.train()
     greedy = [round(float(v), 1) for v in result.final_eval]
+    seconds = round(time.perf_counter() - start, 1)
+    if args.where:  # where the greedy policies' time goes, in the same window
+        print(trainer_time_shares(trainer), flush=True)
     what = f"{algo} alpha {args.alpha} gamma {args.gamma}" if learn else f"rule {algo}"
     what += ", own rewards" if args.own_rewards else ""
     what += ", 256-state root" if args.small_root else ""
+    what += ", Idle at the root" if args.root_idle else ""
+    what += f", part reward {args.part_reward:g}" if args.part_reward else ""
     return {
         "what": what,
         "seeds": args.seeds,
@@ -76,7 +88,7 @@ def run(args, algo: str, learn: bool) -> dict:
         "greedy": round(statistics.mean(greedy), 1),
         "per_seed": greedy,
         "window": f"[{args.burn_in:g}, {args.burn_in + args.window:g}) s x {args.rows} rows",
-        "seconds": round(time.perf_counter() - start, 1),
+        "seconds": seconds,
     }
 
 
@@ -93,6 +105,9 @@ def main() -> None:
     p.add_argument("--max-steps", type=int, default=40_000)
     p.add_argument("--small-root", action="store_true", help="root: Pi empty / not (256)")
     p.add_argument("--own-rewards", action="store_true", help="each AGV paid for its own")
+    p.add_argument("--root-idle", action="store_true", help="Idle at the root (no commitment)")
+    p.add_argument("--part-reward", type=float, default=0.0, help="reward per part into Di")
+    p.add_argument("--where", action="store_true", help="also print where the time goes")
     p.add_argument("--rules", nargs="*", default=[], help="per-AGV rules in the same window")
     args = p.parse_args()
     torch.set_num_threads(1)

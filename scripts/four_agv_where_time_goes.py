@@ -60,6 +60,11 @@ def where_time_goes(run_dir: str, window: float | None = None) -> str:
     ``window``: count this many seconds after the burn-in instead of the run's window.
     """
     trainer, _ = evaluate_run(run_dir)
+    return f"{run_dir}: " + trainer_time_shares(trainer, window)
+
+
+def trainer_time_shares(trainer, window: float | None = None) -> str:
+    """``where_time_goes`` for a trainer's (trained) greedy policies, without a run folder."""
     ev, env = trainer.evaluator, trainer.eval_env
     if window is not None:
         ev.horizon_time = window
@@ -70,6 +75,7 @@ def where_time_goes(run_dir: str, window: float | None = None) -> str:
     running = torch.full_like(env.location, IDLE)
     agv_time = torch.zeros(len(AGV_KINDS), dtype=torch.float64)
     machine_time = torch.zeros(len(MACHINE_KINDS), dtype=torch.float64)
+    station_busy = torch.zeros(env.drop_off.shape[1], dtype=torch.float64)
     clock = torch.zeros(env.batch_size, dtype=torch.float64)
     delivered, counted = 0.0, 0.0
     end = ev.burn_in_time + ev.horizon_time
@@ -85,6 +91,7 @@ def where_time_goes(run_dir: str, window: float | None = None) -> str:
         machine_time += torch.zeros_like(machine_time).index_add_(
             0, machine.flatten(), count[:, None].expand_as(machine).flatten()
         )
+        station_busy += ((machine == 0).double() * count[:, None]).sum(0)
         delivered += float((td["assemblies_delivered"].double() * (count > 0)).sum())
         counted += float(count.sum())
         clock += dt
@@ -93,7 +100,7 @@ def where_time_goes(run_dir: str, window: float | None = None) -> str:
         action = agent.step(td)
     agv_share = agv_time / agv_time.sum()
     machine_share = machine_time / machine_time.sum()
-    lines = [f"{run_dir}: {delivered / counted * 1000:.1f} assemblies per 1,000 s greedy"]
+    lines = [f"{delivered / counted * 1000:.1f} assemblies per 1,000 s greedy"]
     lines.append(
         "  AGV time: "
         + ", ".join(f"{k} {v:.1%}" for k, v in zip(AGV_KINDS, agv_share, strict=True))
@@ -101,6 +108,10 @@ def where_time_goes(run_dir: str, window: float | None = None) -> str:
     lines.append(
         "  machine time: "
         + ", ".join(f"{k} {v:.1%}" for k, v in zip(MACHINE_KINDS, machine_share, strict=True))
+    )
+    busy = station_busy / counted
+    lines.append(
+        "  busy per machine: " + ", ".join(f"M{k + 1} {v:.1%}" for k, v in enumerate(busy))
     )
     return "\n".join(lines)
 

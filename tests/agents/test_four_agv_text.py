@@ -234,3 +234,25 @@ def test_per_agv_rule_waits_at_a_full_drop_off_and_at_an_empty_pick_up():
     env.drop_off[0, 1] = 2
     env.pick_up[0, 2] = 1
     assert rule(observe(env)).tolist() == [UNLOAD, LOAD]
+
+
+# ---------------------------------------------------------------- issue 33's options
+def test_an_idle_at_the_root_commits_to_nothing():
+    g = text_hierarchy(root_idle=True)
+    root = g.node("Root")
+    assert root.children_names[-1] == "Idle" and len(root.children_names) == 9
+    assert g.node("Idle").is_primitive
+    assert text_hierarchy().node("Root").children_names[-1] == "DA_4"  # the default: no Idle
+
+
+def test_a_part_reward_pays_the_drop_and_the_throughput_counts_assemblies_only():
+    env = four_agv_text.make_env([0], 1, n_agents=2, own_rewards=True, part_reward=1.0)
+    env.reset()
+    env.to_arrival.fill_(FAR)
+    env.location[:] = torch.tensor([[DROP_OFF[0], WAREHOUSE_DROP]])
+    env.status[:] = torch.tensor([[1, 5]])  # part 1 at D1, assembly 1 at WA
+    td = env.step(torch.tensor([[UNLOAD, UNLOAD]]))
+    assert float(td["reward"]) == 2.0  # one part, one assembly
+    assert float(four_agv_text.assemblies(td)) == 1.0
+    no_part_reward = four_agv_text.make_env([0], 1, n_agents=2, own_rewards=True)
+    assert no_part_reward.rewards.part == 0.0

@@ -22,8 +22,10 @@ def test_the_root_of_four_agv_text_starts_at_zero(algo):
     root = learner.heads["Root"]
     assert torch.count_nonzero(root["C"]) == 0
     assert torch.count_nonzero(root["C_int"]) == 0  # was -49.96, the subtasks' step cost
-    pessimism = four_agv.internal_init()
-    assert pessimism == pytest.approx(-49.96, abs=0.01)
+    assert four_agv.internal_init() == pytest.approx(-49.96, abs=0.01)  # at gamma 0.97
+    gamma = spec.learner.kwargs.get("gamma", four_agv.GAMMA)  # 0.8 per second now
+    pessimism = four_agv.internal_init(gamma=gamma)
+    assert pessimism == pytest.approx(-49.7, abs=0.1)
     for job in ("DM_1", "DA_4"):  # the step-cost subtasks keep their own pessimism
         c_int = learner.heads[job]["C_int"]
         assert torch.allclose(c_int, torch.full_like(c_int, pessimism))
