@@ -41,7 +41,7 @@ SLOW_PAIRS: dict[tuple[str, str], str] = {
     **{
         (domain, f"com-{cost}"): _SAME_CODE_AS_COM_1
         for domain in ("two-taxi-earlier", "two-taxi", "two-taxi-station")
-        for cost in (5, 10)
+        for cost in (0, 5, 10)  # (ComCost 0 also runs fast in com-0-loss50)
     },
     **{
         (domain, "com-0-loss100"): _SAME_CODE_AS_LOSS50
