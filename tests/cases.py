@@ -26,6 +26,10 @@ _SAME_CODE_AS_SINGLE = (
     "single with buffer capacity 1, a constant of the env and graph (capacity 1 runs fast "
     "with four-agv-earlier q)"
 )
+_SAME_CODE_AS_TWO_TAXI = (
+    "as the two-taxi pair, footnote 4's arrivals read per station only (make_text_env's "
+    "arrivals option: the same graph, learner and env code; two-taxi-station single runs fast)"
+)
 _SAME_RULE_CODE = (
     "another DispatchRule's keys: they run fast wrapped per AGV on four-agv, and the "
     "centralised claims with four-agv-earlier fcfs"
@@ -57,6 +61,10 @@ SLOW_PAIRS: dict[tuple[str, str], str] = {
     ("four-agv-earlier", "hqf"): _SAME_RULE_CODE,
     ("four-agv-earlier", "nsf"): _SAME_RULE_CODE,
     **{("agv-ct", algo): _SAME_CODE_AS_DISCRETE for algo in ("rar", "hdr", "rvi-q")},
+    **{
+        ("two-taxi-station", algo): _SAME_CODE_AS_TWO_TAXI
+        for algo in ("selfish", "cooperative", "com-1", "com-0-loss50")
+    },
     ("four-agv", "cooperative"): _COSTLY_COOPERATIVE,
     ("four-agv", "cooperative-2s"): _COSTLY_COOPERATIVE,
 }
