@@ -72,7 +72,7 @@ def _tensors(obj, path: str, out: list, seen: set, depth: int = 0) -> None:
         _tensors(value, f"{path}.{key}", out, seen, depth + 1)
 
 
-@pytest.mark.parametrize(("domain", "algo"), PAIRS)
+@pytest.mark.parametrize(("domain", "algo"), pair_params(PAIRS))
 def test_every_configuration_builds_on_meta_with_every_tensor_there(domain, algo):
     trainer = build_trainer(registry.get(domain), algo, _options("meta"))
     found: list = []

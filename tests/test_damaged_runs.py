@@ -11,33 +11,8 @@ import pytest
 import torch
 
 from hrl_torch.runs import experiment
-from hrl_torch.runs.cli import main
 from hrl_torch.training.runlog import RunLogger
-
-SMALL = ["--seeds", "2", "--envs-per-seed", "4", "--eval-every", "200", "--eval-episodes", "3"]
-
-
-def train(out, *extra) -> int:
-    return main(
-        ["train", "taxi", "--algo", "maxq-q", *SMALL, "--out", str(out), "--no-progress",
-         "--steps", "400", "--checkpoint-every", "200", *extra]
-    )  # fmt: skip
-
-
-def the_run(out) -> Path:
-    (run_dir,) = [p for p in Path(out).iterdir() if p.is_dir()]
-    return run_dir
-
-
-def snapshot(folder) -> dict:
-    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
-
-
-@pytest.fixture(scope="module")
-def original(tmp_path_factory):
-    out = tmp_path_factory.mktemp("original")
-    assert train(out) == 0
-    return the_run(out)
+from tests.run_folders import refused_lines, the_run, train
 
 
 def _replace_with_folder(path: Path) -> None:
@@ -69,21 +44,14 @@ DAMAGE = {  # what is done to the copy, and what the one line says
 
 
 @pytest.mark.parametrize("case", list(DAMAGE))
-def test_a_damaged_run_folder_is_one_line_and_changes_nothing(case, original, tmp_path, capsys):
+def test_a_damaged_run_folder_is_one_line_and_changes_nothing(case, trained_run, tmp_path, capsys):
     damage, expected = DAMAGE[case]
     run_dir = tmp_path / "copy"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     damage(run_dir)
-    before = snapshot(run_dir)
-    for command in (
-        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
-        ["eval", str(run_dir)],
-    ):
-        assert main(command) == 2
-        (line,) = capsys.readouterr().err.strip().splitlines()
+    for line in refused_lines(run_dir, capsys):
         assert line.startswith("hrl-torch: error: ") and expected in line, line
         assert str(run_dir) in line
-    assert snapshot(run_dir) == before
 
 
 RECORDS = {  # a field of the checkpoint's run record edited, and what the line says
@@ -96,22 +64,15 @@ RECORDS = {  # a field of the checkpoint's run record edited, and what the line 
 
 
 @pytest.mark.parametrize("field", list(RECORDS))
-def test_an_edited_run_record_is_refused_field_by_field(field, original, tmp_path, capsys):
+def test_an_edited_run_record_is_refused_field_by_field(field, trained_run, tmp_path, capsys):
     value, expected = RECORDS[field]
     run_dir = tmp_path / "copy"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     state["run"][field] = value
     torch.save(state, run_dir / "checkpoint.pt")
-    before = snapshot(run_dir)
-    for command in (
-        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
-        ["eval", str(run_dir)],
-    ):
-        assert main(command) == 2
-        (line,) = capsys.readouterr().err.strip().splitlines()
+    for line in refused_lines(run_dir, capsys):
         assert expected in line and "the checkpoint was edited or damaged" in line, line
-    assert snapshot(run_dir) == before
 
 
 def test_a_full_disk_while_writing_plots_is_one_line_and_keeps_the_checkpoint(
@@ -153,10 +114,10 @@ def test_summary_json_stays_valid_json_and_names_what_was_not_finite(tmp_path):
 
 
 def test_a_sparse_tensor_of_another_shape_is_one_line_on_eval_and_resume(
-    original, tmp_path, capsys
+    trained_run, tmp_path, capsys
 ):
     run_dir = tmp_path / "copy"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     key = next(iter(state["trainer"]["learner"]))
     empty = torch.zeros(0, dtype=torch.int64)
@@ -165,12 +126,5 @@ def test_a_sparse_tensor_of_another_shape_is_one_line_on_eval_and_resume(
         "fill": torch.tensor(0, dtype=torch.int32), "index": empty, "values": empty.int(),
     }  # fmt: skip
     torch.save(state, run_dir / "checkpoint.pt")
-    before = snapshot(run_dir)
-    for command in (
-        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
-        ["eval", str(run_dir)],
-    ):
-        assert main(command) == 2
-        (line,) = capsys.readouterr().err.strip().splitlines()
+    for line in refused_lines(run_dir, capsys):
         assert line.startswith("hrl-torch: error: checkpoint does not fit this run: "), line
-    assert snapshot(run_dir) == before

@@ -4,6 +4,7 @@ crash between checkpoints, a longer budget, a finished run, and refused changes.
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -328,9 +329,11 @@ def test_two_concurrent_resumes_one_is_refused(tmp_path):
     assert len(resumes) == 1
 
 
-def test_a_checkpoint_that_does_not_fit_is_one_line_and_changes_nothing(tmp_path, capsys):
-    assert train(tmp_path, "--steps", "400") == 0
-    run_dir = the_run(tmp_path)
+def test_a_checkpoint_that_does_not_fit_is_one_line_and_changes_nothing(
+    trained_run, tmp_path, capsys
+):
+    run_dir = tmp_path / "copy"
+    shutil.copytree(trained_run, run_dir)
     state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     key = next(k for k in state["trainer"]["learner"] if k.endswith(".C"))
     state["trainer"]["learner"][key] = torch.zeros(3, 3)  # a wrong-shape table
@@ -343,9 +346,9 @@ def test_a_checkpoint_that_does_not_fit_is_one_line_and_changes_nothing(tmp_path
     assert snapshot(run_dir) == before  # hparams.json, CSVs, TensorBoard: untouched
 
 
-def test_a_checkpoint_whose_tables_hold_nan_is_refused(tmp_path, capsys):
-    assert train(tmp_path, "--steps", "400") == 0
-    run_dir = the_run(tmp_path)
+def test_a_checkpoint_whose_tables_hold_nan_is_refused(trained_run, tmp_path, capsys):
+    run_dir = tmp_path / "copy"
+    shutil.copytree(trained_run, run_dir)
     state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     key = next(k for k in state["trainer"]["learner"] if k.endswith(".C"))
     state["trainer"]["learner"][key].view(-1)[0] = float("nan")
@@ -358,9 +361,9 @@ def test_a_checkpoint_whose_tables_hold_nan_is_refused(tmp_path, capsys):
     assert snapshot(run_dir) == before
 
 
-def test_a_checkpoint_whose_recorded_seeds_were_edited_is_refused(tmp_path, capsys):
-    assert train(tmp_path, "--steps", "400") == 0
-    run_dir = the_run(tmp_path)
+def test_a_checkpoint_whose_recorded_seeds_were_edited_is_refused(trained_run, tmp_path, capsys):
+    run_dir = tmp_path / "copy"
+    shutil.copytree(trained_run, run_dir)
     for seeds in ([5, 6], [0, 1, 2]):
         state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
         state["run"]["seeds"] = seeds

@@ -12,32 +12,9 @@ import pytest
 from hrl_torch.common.safe_files import RunFolderError, open_own, replace_file
 from hrl_torch.runs.cli import main
 from hrl_torch.training import runlog
+from tests.run_folders import refused_lines, the_run, train
 
-SMALL = ["--seeds", "2", "--envs-per-seed", "4", "--eval-every", "200", "--eval-episodes", "3"]
 SECRET = b"a file outside the run: must not change\n"
-
-
-def train(out, algo="maxq-q", *extra) -> int:
-    return main(
-        ["train", "taxi", "--algo", algo, *SMALL, "--out", str(out), "--no-progress",
-         "--steps", "400", "--checkpoint-every", "200", *extra]
-    )  # fmt: skip
-
-
-def the_run(out) -> Path:
-    (run_dir,) = [p for p in Path(out).iterdir() if p.is_dir()]
-    return run_dir
-
-
-@pytest.fixture(scope="module")
-def original(tmp_path_factory):
-    out = tmp_path_factory.mktemp("original")
-    assert train(out) == 0
-    return the_run(out)
-
-
-def snapshot(folder) -> dict:
-    return {p: p.read_bytes() for p in Path(folder).rglob("*") if p.is_file()}
 
 
 #: the run folder's entries a link is planted at, and whether it points at a folder
@@ -56,40 +33,33 @@ PLANTED = {
 
 @pytest.mark.parametrize("name", list(PLANTED))
 def test_a_planted_link_is_refused_and_the_outside_stays_byte_for_byte(
-    name, original, tmp_path, capsys
+    name, trained_run, tmp_path, capsys
 ):
     sentinel, sentinel_dir = tmp_path / "sentinel", tmp_path / "outside"
     sentinel.write_bytes(SECRET)
     sentinel_dir.mkdir()
     (sentinel_dir / "kept").write_bytes(SECRET)
     run_dir = tmp_path / "sent"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     target = run_dir / name
     if target.is_dir():
         shutil.rmtree(target)
     else:
         target.unlink(missing_ok=True)
     target.symlink_to(sentinel_dir if PLANTED[name] else sentinel)
-    before = snapshot(run_dir)
-    for command in (
-        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
-        ["eval", str(run_dir)],
-    ):
-        assert main(command) == 2
-        (line,) = capsys.readouterr().err.strip().splitlines()
+    for line in refused_lines(run_dir, capsys):
         assert line.startswith("hrl-torch: error: ") and "symbolic link" in line, line
         assert str(target) in line
-        assert sentinel.read_bytes() == SECRET
-        assert [p.name for p in sentinel_dir.iterdir()] == ["kept"]
-        assert (sentinel_dir / "kept").read_bytes() == SECRET
-    assert snapshot(run_dir) == before
+    assert sentinel.read_bytes() == SECRET
+    assert [p.name for p in sentinel_dir.iterdir()] == ["kept"]
+    assert (sentinel_dir / "kept").read_bytes() == SECRET
 
 
-def test_a_hard_link_to_an_outside_file_is_refused(original, tmp_path, capsys):
+def test_a_hard_link_to_an_outside_file_is_refused(trained_run, tmp_path, capsys):
     sentinel = tmp_path / "sentinel"
     sentinel.write_bytes(SECRET)
     run_dir = tmp_path / "sent"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     (run_dir / "hparams.json").unlink()
     os.link(sentinel, run_dir / "hparams.json")
     assert main(["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800"]) == 2
@@ -156,18 +126,11 @@ def test_an_out_of_4000_characters_is_one_line(tmp_path, capsys):
     assert line.startswith("hrl-torch: error: ") and "too long" in line, line
 
 
-def test_a_checkpoint_of_another_run_is_refused_in_its_folder(original, tmp_path, capsys):
+def test_a_checkpoint_of_another_run_is_refused_in_its_folder(trained_run, tmp_path, capsys):
     other = tmp_path / "other"
     assert train(other, "q") == 0
     run_dir = tmp_path / "mixed"
-    shutil.copytree(original, run_dir)
+    shutil.copytree(trained_run, run_dir)
     shutil.copy(the_run(other) / "checkpoint.pt", run_dir / "checkpoint.pt")
-    before = snapshot(run_dir)
-    for command in (
-        ["train", "--resume", str(run_dir / "checkpoint.pt"), "--steps", "800", "--no-progress"],
-        ["eval", str(run_dir)],
-    ):
-        assert main(command) == 2
-        (line,) = capsys.readouterr().err.strip().splitlines()
+    for line in refused_lines(run_dir, capsys):
         assert "a checkpoint of another run than its folder's (algo" in line, line
-    assert snapshot(run_dir) == before

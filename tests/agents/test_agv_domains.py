@@ -77,8 +77,20 @@ def untrained_throughput(domain, algo) -> torch.Tensor:
     return _UNTRAINED[key]
 
 
-@pytest.mark.parametrize("domain", ["agv", "agv-ct"])
-@pytest.mark.parametrize("algo", ["har", "rar", "hdr", "rvi-q"])
+#: each learner learns in the fast suite on one of the two domains, both domains run there (the
+#: other four pairs, the same learners and envs, only in `make test-all`); that continuous time
+#: changes nothing but the durations is checked exactly in tests/learners/test_average_reward.py
+FAST_AGV = {("agv-ct", "har"), ("agv", "rar"), ("agv", "hdr"), ("agv", "rvi-q")}
+
+
+@pytest.mark.parametrize(
+    ("domain", "algo"),
+    [
+        pytest.param(d, a, marks=() if (d, a) in FAST_AGV else pytest.mark.slow, id=f"{a}-{d}")
+        for d in ("agv", "agv-ct")
+        for a in ("har", "rar", "hdr", "rvi-q")
+    ],
+)
 def test_every_agv_algorithm_learns_something(domain, algo):
     # training throughput (assemblies per 1,000 steps / 1,000 s, the dissertation's curves)
     # over steps 200-400 of 64 primed rows per seed, against the untrained learner's on the

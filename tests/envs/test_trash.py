@@ -206,13 +206,17 @@ def test_outcome_frequencies_match_the_model(model):
         assert abs(freq - p) < 4.5 * (p * (1 - p) / n) ** 0.5 + 1e-9, (s_next, freq, p)
 
 
-def test_env_under_a_dp_policy_earns_the_exact_expected_reward(model):
-    # discounted value iteration over the joint model gives a purposeful joint policy
+def dp_policy(model) -> torch.Tensor:
+    """Discounted value iteration over the joint model: a purposeful joint policy ``[S]``."""
     v = torch.zeros(model.n_states, dtype=torch.float64)
     for _ in range(200):
         q = model.reward + 0.95 * (v[model.next_state] * model.prob).sum(-1)
         v = q.max(1).values
-    policy = q.argmax(1)
+    return q.argmax(1)
+
+
+def test_env_under_a_dp_policy_earns_the_exact_expected_reward(model):
+    policy = dp_policy(model)
     assert torch.equal(TrashEnv([0], 1, refill_prob=0.1).exact_model().next_state, model.next_state)
     assert (model.dumped[torch.arange(model.n_states), policy] > 0).any()
     p, r = model.chain(policy)
@@ -231,9 +235,17 @@ def test_env_under_a_dp_policy_earns_the_exact_expected_reward(model):
     mean_expected, mean_sampled = sum(expected) / horizon, sum(sampled) / horizon
     assert mean_expected > 0.5  # the DP policy collects trash
     assert abs(mean_sampled - mean_expected) < 0.05, (mean_sampled, mean_expected)
+
+
+@pytest.mark.slow  # (the 2,304-state chain's closure and the 440 dense steps: 4/5 of the old
+# test's time; the fast suite runs the gain of this model's chain under another joint policy in
+# tests/test_multiagent.py and of hand-made chains in tests/test_analysis.py)
+def test_the_dp_policy_s_chain_has_its_long_run_reward_per_step_as_gain(model):
     # the chain feeds hrl_torch.analysis: its gain is the long-run reward per step
+    p, r = model.chain(dp_policy(model))
     gain = markov_chain_gain(p, r).gain
-    for _ in range(200):
+    dist = model.start_distribution()
+    for _ in range(240):
         dist = dist @ p
     late = []
     for _ in range(200):

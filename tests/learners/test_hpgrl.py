@@ -4,6 +4,8 @@ The estimates are compared with the exact gradient of the weighted reward-to-go 
 computed by dynamic programming over the hierarchy and differentiated with autograd.
 """
 
+import functools
+
 import pytest
 import torch
 
@@ -98,6 +100,7 @@ def exact_gradient(objective, theta, name):
     return grad
 
 
+@functools.cache  # (one run per setting, shared by the tests that only read it)
 def run(online, n_learners=12, envs=128, episodes=24, baseline=0.0):
     """Frozen HPGRL: per learner, summed estimates and the invocations' start states.
 
@@ -157,7 +160,7 @@ def assert_unbiased(estimates, exact, z=4.0):
 
 @pytest.mark.parametrize("online", [False, True])
 def test_root_gradient_estimate_is_unbiased_and_ignores_internal_rewards(online):
-    learner, theta, _ = run(online)
+    learner, theta, _ = run(online=online)
     estimates = per_learner_estimates(learner, "Root")
     exact = exact_gradient(root_objective, theta, "Root")
     _, se = assert_unbiased(estimates, exact)
