@@ -1,6 +1,7 @@
 """The CLI writes a complete run folder and resumes from its checkpoint."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -127,7 +128,9 @@ def test_no_progress_prints_each_evaluation_as_it_happens(tmp_path, capsys):
     run(tmp_path, "--steps", "800")  # evaluations at 400 and 800 (eval_every 400)
     lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("eval at step")]
     assert len(lines) == 2 and lines[0].startswith("eval at step 400: greedy return ")
-    assert "(2 seeds " in lines[0] and lines[0].endswith(" s]")
+    assert "(2 seeds " in lines[0] and re.search(r"\) \[\d+(\.\d+)? s\]", lines[0]), lines[0]
+    # an untrained taxi loops: the line names the episodes at the step limit and their cycle
+    assert "greedy episode(s) hit the step limit" in lines[0]
 
 
 def test_an_all_nan_evaluation_says_why():

@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from hrl_torch.common.checkpoint import load_checkpoint
+from hrl_torch.runs import registry
 from hrl_torch.runs.cli import main
 from hrl_torch.runs.experiment import RunOptions, run_experiment
 from hrl_torch.training.trainer import Trainer
@@ -92,7 +93,7 @@ def test_resume_from_the_checkpoint_alone_keeps_the_original_settings(tmp_path, 
         out=str(out),
         progress=False,
     )
-    run_experiment(__import__("hrl_torch.runs.registry").registry.get("taxi"), "maxq-q", opts)
+    run_experiment(registry.get("taxi"), "maxq-q", opts)
     assert_same_tables(tables(run_dir), tables(the_run(out)))
     assert logged(run_dir) == logged(the_run(out))
 
