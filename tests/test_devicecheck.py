@@ -175,6 +175,7 @@ DOMAIN = dataclasses.replace(DOMAIN, name="leaky-corridor", make_env=make_env)
 """
 
 
+@pytest.mark.slow  # (10 s: the named lines of the documented example are checked fast above)
 def test_hrl_torch_check_names_the_line_of_a_plugin_s_env(tmp_path, capsys, monkeypatch):
     """``hrl-torch --domain-module M check NAME``: the walkthrough's corridor passes; a copy
     whose env moves a module-level table at every step fails, naming that line."""

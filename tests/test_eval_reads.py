@@ -23,7 +23,9 @@ from hrl_torch.training.evaluation import EvalEpisodes
 
 CONFIGS = [
     ("taxi", "maxq-q", 200),  # episodic, tabulated (frozen values, compaction)
-    ("ship-steering-earlier", "hybrid", 200),  # episodic, policy gradient below
+    pytest.param(  # episodic, policy gradient below (9 s: make test-all)
+        "ship-steering-earlier", "hybrid", 200, marks=pytest.mark.slow
+    ),
     ("small-agv", "har", 0),  # continuing (a throughput window)
     ("trash", "cooperative", 0),  # multi-agent, the broadcast's rounds
 ]

@@ -36,6 +36,7 @@ def installed(tmp_path_factory) -> Path:
     return site
 
 
+@pytest.mark.slow  # (16 s; --domain-module plugins train from the CLI fast in test_algorithms)
 def test_an_installed_plugin_is_listed_and_trains_from_the_cli(installed, tmp_path):
     listed = hrl_torch("list", pythonpath=str(installed), cwd=tmp_path)
     assert listed.returncode == 0, listed.stderr
@@ -121,6 +122,7 @@ def test_a_broken_plugin_entry_is_a_clear_error(monkeypatch, capsys):
 TWO_ROBOTS = ROOT / "examples" / "hrl-two-robots"
 
 
+@pytest.mark.slow  # (9 s: the walkthrough's code runs fast in test_docs_blocks)
 def test_the_multi_agent_walkthrough_domain_trains_from_the_cli(tmp_path, monkeypatch, capsys):
     """docs/multiagent-walkthrough.md's plugin: an episodic two-agent domain, CLI end to end."""
     monkeypatch.syspath_prepend(str(TWO_ROBOTS))
