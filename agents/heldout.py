@@ -138,25 +138,20 @@ def _primitives() -> list[Primitive]:
     ]
 
 
+def _polling_root(children: list[str]) -> Subtask:
+    """The root over ``children`` that sees where the server is and both queues (50 states)."""
+    return Subtask("Root", children, n_states=polling.N_STATES, abstract=lambda o: o["state"])
+
+
 def polling_hierarchy() -> TaskGraph:
     """Root (where, both queues: 50 states) -> Serve0, Serve1, Wait."""
-    root = Subtask(
-        "Root",
-        ["Serve0", "Serve1", "Wait"],
-        n_states=polling.N_STATES,
-        abstract=lambda o: o["state"],
-    )
+    root = _polling_root(["Serve0", "Serve1", "Wait"])
     return TaskGraph("Root", [root, _serve(0), _serve(1), *_primitives()], n_actions=3)
 
 
 def polling_flat() -> TaskGraph:
     """One root over Process, Switch, Wait and the 50 states (flat learners)."""
-    root = Subtask(
-        "Root",
-        ["Process", "Switch", "Wait"],
-        n_states=polling.N_STATES,
-        abstract=lambda o: o["state"],
-    )
+    root = _polling_root(["Process", "Switch", "Wait"])
     return TaskGraph("Root", [root, *_primitives()], n_actions=3)
 
 

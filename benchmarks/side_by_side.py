@@ -32,8 +32,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-EVAL = r"""
-import json, sys, time, torch
+#: what both scripts start with: either layout, either name of the text's four AGVs
+PRELUDE = r"""
+import torch
 torch.set_num_threads(1)
 import agents  # noqa: F401
 try:
@@ -46,6 +47,11 @@ try:  # (0.1 called the text's set-up four-agv-text)
     DOMAIN = registry.get("four-agv-text")
 except Exception:
     DOMAIN = registry.get("four-agv")
+"""
+
+EVAL = r"""
+import json, sys, time, torch
+""" + PRELUDE + r"""
 opts = RunOptions(seeds=[0], steps=2000, progress=False, tensorboard=False, check_env=False)
 trainer = build_trainer(DOMAIN, "cooperative", opts)
 trainer.eval_env, eval_env = None, trainer.eval_env  # train only
@@ -62,18 +68,7 @@ print(json.dumps({"seconds": seconds, "cpu": cpu, "values": repr([v.tolist() for
 OPS = r"""
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
-torch.set_num_threads(1)
-import agents  # noqa: F401
-try:
-    from hrl_torch.runs import registry
-    from hrl_torch.runs.experiment import RunOptions, build_trainer
-except ImportError:  # (0.1's flat layout, e.g. f3a1bd5)
-    from hrl_torch import registry
-    from hrl_torch.experiment import RunOptions, build_trainer
-try:  # (0.1 called the text's set-up four-agv-text)
-    DOMAIN = registry.get("four-agv-text")
-except Exception:
-    DOMAIN = registry.get("four-agv")
+""" + PRELUDE + r"""
 class Count(TorchDispatchMode):
     count = 0
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
