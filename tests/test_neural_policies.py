@@ -219,6 +219,18 @@ class Pick(BatchedEnv):
         return {"observation": self.x.clone()}
 
 
+def probe_input(learner, x: torch.Tensor, n_children: int) -> PolicyInput:
+    """200 probes at features ``x``: the first 100 for learner 0, the rest for learner 1."""
+    return PolicyInput(
+        base=torch.tensor([0, learner.total]).repeat_interleave(100),
+        state=torch.zeros(200, dtype=torch.long),
+        features=x,
+        available=torch.ones(200, n_children, dtype=torch.bool),
+        u=torch.rand(200, 3),
+        step=0,
+    )
+
+
 def test_a_categorical_mlp_head_learns_which_child_each_feature_wants():
     """Flat PGRL with an MLP softmax (16 tanh units over scaled features, Adam) on ``Pick``:
     the greedy choice is right for 0.40 and 0.35 of the probes untrained (every logit 0: the
@@ -233,14 +245,7 @@ def test_a_categorical_mlp_head_learns_which_child_each_feature_wants():
     config = TrainConfig(steps=2_000, eval_every=0, progress=False)
     trainer = Trainer(Pick([0, 1], 32), graph, learner, Greedy(), config)
     x = torch.rand(200, 2, generator=torch.Generator().manual_seed(5))
-    inp = PolicyInput(
-        base=torch.tensor([0, learner.total]).repeat_interleave(100),
-        state=torch.zeros(200, dtype=torch.long),
-        features=x,
-        available=torch.ones(200, 3, dtype=torch.bool),
-        u=torch.rand(200, 3),
-        step=0,
-    )
+    inp = probe_input(learner, x, n_children=3)
 
     def right() -> list[float]:
         child = head.act(learner.theta, inp, greedy=True).child
@@ -323,14 +328,7 @@ def test_a_two_entry_mlp_gaussian_learns_to_reach():
     config = TrainConfig(steps=1_500, eval_every=0, progress=False)
     trainer = Trainer(Reach2([0, 1], 32), learner.graph, learner, Greedy(), config)
     x = torch.rand(200, 2, generator=torch.Generator().manual_seed(5))
-    inp = PolicyInput(
-        base=torch.tensor([0, learner.total]).repeat_interleave(100),
-        state=torch.zeros(200, dtype=torch.long),
-        features=x,
-        available=torch.ones(200, 1, dtype=torch.bool),
-        u=torch.rand(200, 3),
-        step=0,
-    )
+    inp = probe_input(learner, x, n_children=1)
 
     def error() -> list[float]:
         action = head.act(learner.theta, inp, greedy=True).action
